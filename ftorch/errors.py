@@ -1,0 +1,5 @@
+"""Errors raised for bad input: one precise message naming the input, never a torch traceback."""
+
+
+class InputError(ValueError):
+    """An image, tensor, file or parameter given to ftorch cannot be used as it is."""

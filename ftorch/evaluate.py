@@ -1,0 +1,159 @@
+"""Batched feature values (eq. 3.12-3.14, always rotation invariant).
+
+For F features and N image records the values come from gathered tensors: part 0 of every
+local feature is matched against the canonical descriptors of all reference points at once
+(one matrix product); later parts are placed by alg. 3.6, sampled from the pyramid and steered
+to their orientation. Since steering is orthogonal, the normalised inner product of canonical
+vectors equals eq. 3.13's. Boolean compounds combine their sub-feature values (3.5.2).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+from .errors import InputError
+from .features import Conjunction, Disjunction, Feature, LocalFeature
+from .record import EDGEL_SLOTS, ImageRecords
+from .salient import EDGEL
+from .sampling import advance, sample_primitives
+from .steering import steer
+
+KIND_CODE = {"edgel": EDGEL, "texel": 1}
+
+
+@dataclass
+class FeatureValues:
+    """values (F, N) in [0, 1], and x, y, sigma, theta (F, N) of the maximising reference point.
+
+    Where an image has no applicable reference point the value is 0 and the location NaN. For
+    Boolean compounds the location is that of the sub-feature with the larger value.
+    """
+
+    values: Tensor
+    x: Tensor
+    y: Tensor
+    sigma: Tensor
+    theta: Tensor
+
+    def _fields(self) -> tuple[Tensor, ...]:
+        return self.values, self.x, self.y, self.sigma, self.theta
+
+
+def part_vector(kind: str, vector: Sequence[float], device=None, dtype=None) -> Tensor:
+    """A part's vector in the 15-slot descriptor layout."""
+    out = torch.zeros(15, device=device, dtype=dtype)
+    values = torch.tensor(vector, device=device, dtype=dtype)
+    if kind == "edgel":
+        out[EDGEL_SLOTS] = values
+    else:
+        out[:] = values
+    return out
+
+
+def _stack_parts(features: list[LocalFeature], device, dtype):
+    n = features[0].primitives
+    vectors = torch.stack([torch.stack([part_vector(p.kind, p.vector, device, dtype) for p in f.parts]) for f in features])
+    params = torch.tensor([[[p.phi, p.dtheta, p.d, p.dsigma] for p in f.parts] for f in features], device=device, dtype=dtype)
+    kinds = torch.tensor([[KIND_CODE[p.kind] for p in f.parts] for f in features], device=device).view(-1, n)
+    return vectors, params, kinds
+
+
+def local_values(features: list[LocalFeature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
+    """Values of local features that share the first part's kind and the number of parts."""
+    device, dtype = records.device, records.responses.dtype
+    vectors, params, kinds = _stack_parts(features, device, dtype)
+    n_parts = vectors.shape[1]
+    reference = records.edgel_mask() if features[0].parts[0].kind == "edgel" else records.texel_mask()
+    n_images, n_points = reference.shape
+    chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if n_parts > 1 else 1)))
+    results = [
+        _local_chunk(vectors[s : s + chunk], params[s : s + chunk], kinds[s : s + chunk], records, reference)
+        for s in range(0, len(features), chunk)
+    ]
+    return FeatureValues(*(torch.cat(parts) for parts in zip(*(r._fields() for r in results))))
+
+
+def _local_chunk(vectors, params, kinds, records: ImageRecords, reference: Tensor) -> FeatureValues:
+    n_feat, n_parts = vectors.shape[:2]
+    n_images, n_points = reference.shape
+    shape = (n_feat, n_images, n_points)
+    numerator = torch.einsum("fd,npd->fnp", vectors[:, 0], records.canonical)
+    observed = (records.canonical**2).sum(-1).expand(shape)
+    valid = reference.expand(shape)
+    x, y = records.x.expand(shape), records.y.expand(shape)
+    theta, sigma = records.theta.expand(shape), records.sigma.expand(shape)
+    image = torch.arange(n_images, device=records.device)[None, :, None].expand(shape).reshape(-1)
+    for i in range(1, n_parts):
+        x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None, None] for j in range(4)))
+        kind = kinds[:, i][:, None, None].expand(shape).reshape(-1)
+        sample, ok = sample_primitives(records, image, x.reshape(-1), y.reshape(-1), sigma.reshape(-1), kind)
+        sample = steer(sample, theta.reshape(-1)).view(*shape, 15)
+        numerator = numerator + torch.einsum("fnpd,fd->fnp", sample, vectors[:, i])
+        observed = observed + (sample**2).sum(-1)
+        valid = valid & ok.view(shape)
+    pattern = (vectors**2).sum((1, 2))[:, None, None]
+    cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
+    cosine = torch.where(valid, cosine.clamp_min(0), torch.full_like(cosine, -1.0))
+    best, where = cosine.max(-1)
+    found = best >= 0
+    nan = torch.full_like(best, math.nan)
+
+    def at(field: Tensor) -> Tensor:
+        return torch.where(found, field.expand(shape).gather(-1, where[..., None])[..., 0], nan)
+
+    return FeatureValues(best.clamp_min(0), at(records.x), at(records.y), at(records.sigma), at(records.theta))
+
+
+@torch.no_grad()
+def feature_values(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
+    """Values (F, N) of ``features`` in every image of ``records`` and where each is strongest.
+
+    All local features (texels, geometric compounds, the leaves of Boolean compounds) are
+    evaluated once each, batched by structure; ``max_elements`` bounds the gathered tensors.
+    """
+    features = list(features)
+    if not all(isinstance(f, Feature) for f in features):
+        raise InputError("features: every item must be an ftorch Feature")
+    leaves: dict[LocalFeature, int] = {}
+    for feature in features:
+        _collect(feature, leaves)
+    groups: dict[tuple, list[LocalFeature]] = {}
+    for leaf in leaves:
+        groups.setdefault((leaf.parts[0].kind, leaf.primitives), []).append(leaf)
+    leaf_values: dict[LocalFeature, tuple[Tensor, ...]] = {}
+    for group in groups.values():
+        result = local_values(group, records, max_elements)
+        for j, leaf in enumerate(group):
+            leaf_values[leaf] = tuple(t[j] for t in result._fields())
+    if not features:
+        empty = records.responses.new_zeros(0, len(records))
+        return FeatureValues(empty, empty, empty, empty, empty)
+    rows = [_combine(f, leaf_values) for f in features]
+    return FeatureValues(*(torch.stack(col) for col in zip(*rows)))
+
+
+def _collect(feature: Feature, leaves: dict) -> None:
+    if isinstance(feature, LocalFeature):
+        leaves.setdefault(feature, len(leaves))
+    else:
+        _collect(feature.a, leaves)
+        _collect(feature.b, leaves)
+
+
+def _combine(feature: Feature, leaf_values: dict) -> tuple[Tensor, ...]:
+    if isinstance(feature, LocalFeature):
+        return leaf_values[feature]
+    a, b = _combine(feature.a, leaf_values), _combine(feature.b, leaf_values)
+    take_b = b[0] > a[0]
+    located = [torch.where(take_b, fb, fa) for fa, fb in zip(a[1:], b[1:])]
+    if isinstance(feature, Conjunction):
+        value = a[0] * b[0]
+    elif isinstance(feature, Disjunction):
+        value = torch.maximum(a[0], b[0])
+    else:
+        raise InputError(f"unknown feature type {type(feature).__name__}")
+    return (value, *located)

@@ -1,0 +1,163 @@
+"""Features of the unbounded feature space (3.4-3.5) as plain, JSON-exact data objects.
+
+- :class:`Texel`: a 15-d texel response vector (3.4.2), canonical (steered to its own orientation).
+- :class:`Geometric`: n >= 2 primitive :class:`Part` s with attitudes phi_i, angle differences
+  dtheta_i, distances d_i (in units of sigma_{i-1}) and scale ratios dsigma_i (alg. 3.6).
+- :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
+
+A part's vector is its response at its own location and scale, steered to its orientation:
+15 numbers for a texel, 2 for an edgel (the first-order pair, eq. 3.5). ``to_json`` /
+``from_json`` round-trip every float exactly (Python writes the shortest exact repr).
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+from .errors import InputError
+
+PART_SIZE = {"texel": 15, "edgel": 2}
+
+
+def _vector(values, kind: str) -> tuple[float, ...]:
+    vec = tuple(float(v) for v in values)
+    if len(vec) != PART_SIZE[kind]:
+        raise InputError(f"{kind} vector must have {PART_SIZE[kind]} numbers, got {len(vec)}")
+    if not all(math.isfinite(v) for v in vec):
+        raise InputError(f"{kind} vector has NaN or infinite entries")
+    if not any(vec):
+        raise InputError(f"{kind} vector is all zeros: it matches nothing")
+    return vec
+
+
+@dataclass(frozen=True)
+class Part:
+    """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3)."""
+
+    kind: str
+    vector: tuple[float, ...]
+    phi: float = 0.0
+    dtheta: float = 0.0
+    d: float = 0.0
+    dsigma: float = 1.0
+
+    def __post_init__(self):
+        if self.kind not in PART_SIZE:
+            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}")
+        object.__setattr__(self, "vector", _vector(self.vector, self.kind))
+        for name in ("phi", "dtheta", "d", "dsigma"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise InputError(f"part {name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+        if self.d < 0 or self.dsigma <= 0:
+            raise InputError(f"part needs d >= 0 and dsigma > 0, got d={self.d}, dsigma={self.dsigma}")
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "vector": list(self.vector), "phi": self.phi, "dtheta": self.dtheta,
+                "d": self.d, "dsigma": self.dsigma}
+
+
+class Feature:
+    """Base of all features: JSON round trip and structural size."""
+
+    def to_dict(self) -> dict:
+        raise NotImplementedError
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict())
+
+    @staticmethod
+    def from_dict(data: dict) -> "Feature":
+        try:
+            kind = data["type"]
+            if kind == "texel":
+                return Texel(data["vector"])
+            if kind == "geometric":
+                return Geometric(tuple(Part(**p) for p in data["parts"]))
+            if kind in ("conjunction", "disjunction"):
+                cls = Conjunction if kind == "conjunction" else Disjunction
+                return cls(Feature.from_dict(data["a"]), Feature.from_dict(data["b"]))
+        except (KeyError, TypeError) as err:
+            raise InputError(f"not a feature description: {data!r:.200} ({err})") from None
+        raise InputError(f"unknown feature type {kind!r}")
+
+    @staticmethod
+    def from_json(text: str) -> "Feature":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise InputError(f"feature JSON is not valid JSON: {err}") from None
+        if not isinstance(data, dict):
+            raise InputError("feature JSON must be an object")
+        return Feature.from_dict(data)
+
+    @property
+    def primitives(self) -> int:
+        """Number of primitives in the feature (its structural complexity, 3.6)."""
+        raise NotImplementedError
+
+
+class LocalFeature(Feature):
+    """A feature measured at one reference point: a texel or a geometric compound."""
+
+    parts: tuple[Part, ...]
+
+    @property
+    def primitives(self) -> int:
+        return len(self.parts)
+
+
+@dataclass(frozen=True)
+class Texel(LocalFeature):
+    vector: tuple[float, ...]
+
+    def __post_init__(self):
+        object.__setattr__(self, "vector", _vector(self.vector, "texel"))
+
+    @property
+    def parts(self) -> tuple[Part, ...]:
+        return (Part("texel", self.vector),)
+
+    def to_dict(self) -> dict:
+        return {"type": "texel", "vector": list(self.vector)}
+
+
+@dataclass(frozen=True)
+class Geometric(LocalFeature):
+    parts: tuple[Part, ...]
+
+    def __post_init__(self):
+        parts = tuple(self.parts)
+        if len(parts) < 2 or not all(isinstance(p, Part) for p in parts):
+            raise InputError(f"a geometric compound needs at least two Parts, got {len(parts)}")
+        object.__setattr__(self, "parts", parts)
+
+    def to_dict(self) -> dict:
+        return {"type": "geometric", "parts": [p.to_dict() for p in self.parts]}
+
+
+@dataclass(frozen=True)
+class _Boolean(Feature):
+    a: Feature
+    b: Feature
+
+    def __post_init__(self):
+        if not (isinstance(self.a, Feature) and isinstance(self.b, Feature)):
+            raise InputError(f"{type(self).__name__} combines two features")
+
+    @property
+    def primitives(self) -> int:
+        return self.a.primitives + self.b.primitives
+
+    def to_dict(self) -> dict:
+        return {"type": type(self).__name__.lower(), "a": self.a.to_dict(), "b": self.b.to_dict()}
+
+
+class Conjunction(_Boolean):
+    """Value = product of the two sub-feature values (3.5.2)."""
+
+
+class Disjunction(_Boolean):
+    """Value = maximum of the two sub-feature values (3.5.2)."""

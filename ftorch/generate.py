@@ -1,0 +1,111 @@
+"""Generating candidate features from a sample image (alg. 4.10, methods 2 and 3).
+
+Every generated part is measured exactly as :func:`ftorch.evaluate.feature_values` measures
+it, so a feature sampled from an image has value 1 at its own reference point there.
+Randomness comes only from the ``generator`` passed in (a ``torch.Generator``), so a seed
+fixes every choice. Each function returns ``None`` where the image offers no suitable point.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from .errors import InputError
+from .evaluate import feature_values
+from .features import Geometric, LocalFeature, Part, Texel
+from .record import EDGEL_SLOTS, ImageRecords
+from .salient import EDGEL
+from .sampling import advance, sample_primitives
+from .steering import steer
+
+
+def _choose(candidates: Tensor, generator) -> int | None:
+    if len(candidates) == 0:
+        return None
+    pick = torch.randint(len(candidates), (1,), generator=generator, device="cpu")
+    return int(candidates[int(pick)])
+
+
+def _default_distance(records: ImageRecords, n: int, max_distance: float | None) -> float:
+    return float(records.sizes[n].min()) / 4 if max_distance is None else float(max_distance)
+
+
+def _point(records: ImageRecords, n: int, p: int) -> tuple[Tensor, ...]:
+    return records.x[n, p], records.y[n, p], records.sigma[n, p], records.theta[n, p]
+
+
+def _part_kind(records: ImageRecords, n: int, p: int) -> str:
+    return "edgel" if int(records.kind[n, p]) == EDGEL else "texel"
+
+
+def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
+    """Part for salient point q placed relative to the previous part (x, y, sigma, theta)."""
+    x0, y0, s0, t0 = (float(v) for v in previous)
+    x1, y1, s1, t1 = (float(v) for v in _point(records, n, q))
+    kind = _part_kind(records, n, q)
+    phi, dtheta = math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0
+    d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
+    x, y, sigma, theta = advance(*previous, phi, dtheta, d, dsigma)
+    code = torch.tensor([int(records.kind[n, q])], device=records.device)
+    image = torch.tensor([n], device=records.device)
+    sample, _ = sample_primitives(records, image, x[None], y[None], sigma[None], code)
+    vector = steer(sample, theta[None])[0]
+    vector = vector[EDGEL_SLOTS] if kind == "edgel" else vector
+    return Part(kind, vector.tolist(), phi, dtheta, d, dsigma)
+
+
+def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
+    canonical = records.canonical[n, p]
+    return (canonical[EDGEL_SLOTS] if int(records.kind[n, p]) == EDGEL else canonical).tolist()
+
+
+def random_texel(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texel | None:
+    """Method 2, texel branch: the texel response vector at a random salient texel of image n."""
+    p = _choose(records.texel_mask()[n].nonzero()[:, 0].cpu(), generator)
+    return None if p is None else Texel(_own_vector(records, n, p))
+
+
+def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator | None = None,
+                      max_distance: float | None = None) -> Geometric | None:
+    """Method 2, edgel branch: a geometric compound of two random salient edgels of image n.
+
+    The second edgel is drawn from those within ``max_distance`` pixels of the first
+    (default: a quarter of the shorter image side, the largest scale).
+    """
+    edgels = records.edgel_mask()[n].nonzero()[:, 0].cpu()
+    first = _choose(edgels, generator)
+    if first is None:
+        return None
+    distance = torch.hypot(records.x[n, edgels] - records.x[n, first], records.y[n, edgels] - records.y[n, first]).cpu()
+    second = _choose(edgels[(distance > 0) & (distance <= _default_distance(records, n, max_distance))], generator)
+    if second is None:
+        return None
+    head = Part("edgel", _own_vector(records, n, first))
+    return Geometric((head, _relative_part(records, n, second, _point(records, n, first))))
+
+
+def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, generator: torch.Generator | None = None,
+                     max_distance: float | None = None) -> Geometric | None:
+    """Method 3: add a random salient edgel or texel near the feature's strongest occurrence.
+
+    The feature is located in image n by eq. 3.14; its parts are placed there by alg. 3.6 and
+    a salient point (edgel or texel) within ``max_distance`` pixels of the last part becomes the
+    new last part. The existing parts keep their vectors, so the result is more specific.
+    """
+    if not isinstance(feature, LocalFeature):
+        raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
+    found = feature_values([feature], records[n])
+    if not bool(torch.isfinite(found.x[0, 0])):
+        return None
+    state = (found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0])
+    for part in feature.parts[1:]:
+        state = advance(*state, part.phi, part.dtheta, part.d, part.dsigma)
+    points = records.mask[n].nonzero()[:, 0]
+    distance = torch.hypot(records.x[n, points] - state[0], records.y[n, points] - state[1])
+    near = points[(distance >= 0.5) & (distance <= _default_distance(records, n, max_distance))].cpu()
+    q = _choose(near, generator)
+    if q is None:
+        return None
+    return Geometric((*feature.parts, _relative_part(records, n, q, state)))

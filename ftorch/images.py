@@ -1,0 +1,82 @@
+"""Turning user images into the (B, 1, H, W) float batches every ftorch module takes.
+
+Rules:
+- torch tensors and numpy arrays; shape (H, W), (B, H, W) or (B, C, H, W) with C = 1 or 3.
+- uint8 is divided by 255, uint16 by 65535; float16/bfloat16 become float32; float32 and
+  float64 are kept as they are (values need not lie in [0, 1]: feature values are invariant
+  to I -> a*I + b). Other dtypes are refused.
+- Colour (C = 3, RGB order) becomes grey by ITU-R BT.601 luma, 0.299 R + 0.587 G + 0.114 B.
+  Files are read with OpenCV (BGR order, handled) and converted by the same rule.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import InputError
+
+LUMA = (0.299, 0.587, 0.114)
+
+
+def as_image_batch(images, name: str = "images") -> Tensor:
+    """Validate and convert ``images`` to a finite float batch (B, 1, H, W)."""
+    if isinstance(images, np.ndarray):
+        if images.dtype == object:
+            raise InputError(f"{name}: numpy array of dtype object is not an image")
+        images = torch.from_numpy(np.ascontiguousarray(images))
+    if not isinstance(images, Tensor):
+        raise InputError(f"{name}: expected a torch.Tensor or numpy array, got {type(images).__name__}")
+    shape = tuple(images.shape)
+    if images.numel() == 0:
+        raise InputError(f"{name}: empty image, shape {shape}")
+    if images.ndim == 2:
+        images = images[None, None]
+    elif images.ndim == 3:
+        images = images[:, None]
+    elif images.ndim != 4:
+        raise InputError(f"{name}: expected shape (H, W), (B, H, W) or (B, C, H, W), got {shape}")
+    if images.shape[1] not in (1, 3):
+        raise InputError(f"{name}: expected 1 (grey) or 3 (RGB) channels on dim 1, got shape {shape}")
+    images = _to_float(images, name)
+    if images.shape[1] == 3:
+        weights = torch.tensor(LUMA, dtype=images.dtype, device=images.device)
+        images = (images * weights[None, :, None, None]).sum(1, keepdim=True)
+    finite = torch.isfinite(images)
+    if not bool(finite.all()):
+        bad = int((~finite).sum())
+        raise InputError(f"{name}: {bad} of {images.numel()} pixels are NaN or infinite")
+    return images
+
+
+def _to_float(images: Tensor, name: str) -> Tensor:
+    if images.dtype == torch.uint8:
+        return images.float() / 255.0
+    if images.dtype == torch.uint16:
+        return images.float() / 65535.0
+    if images.dtype in (torch.float16, torch.bfloat16):
+        return images.float()
+    if images.dtype in (torch.float32, torch.float64):
+        return images
+    raise InputError(f"{name}: dtype {images.dtype} is not supported; use uint8, uint16 or a float type")
+
+
+def load_image(path) -> Tensor:
+    """Read an image file as a grey float32 tensor (H, W) in [0, 1]."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None or data.size == 0:
+        raise InputError(f"{path}: not a readable image file")
+    if data.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"{path}: pixel type {data.dtype} is not supported (8- or 16-bit images only)")
+    scale = 255.0 if data.dtype == np.uint8 else 65535.0
+    data = data.astype(np.float32) / scale
+    if data.ndim == 3:
+        bgr = data[..., :3]
+        data = bgr @ np.array(LUMA[::-1], dtype=np.float32)
+    return torch.from_numpy(np.ascontiguousarray(data))

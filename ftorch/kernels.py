@@ -1,0 +1,47 @@
+"""Sampled Gaussian-derivative kernels (eq. 3.1-3.2) and their reflect-folded band matrices.
+
+Kernels are the sampled Gaussian normalised to unit sum, times the derivative polynomial,
+exactly as ``scipy.ndimage.gaussian_filter1d`` builds them, truncated at
+``radius = int(truncate * sigma + 0.5)``. They are *scale-normalised*: the order-d kernel is
+multiplied by sigma**d, so responses of different scales are comparable (the gamma = 1
+normalisation behind eq. 3.9-3.11 and the scale-invariant texel of 3.4.2).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def kernel_radius(sigma: float, truncate: float) -> int:
+    """Half-width of the sampled kernel, scipy's rule: int(truncate * sigma + 0.5)."""
+    return int(truncate * sigma + 0.5)
+
+
+def derivative_kernels(sigma: float, truncate: float) -> np.ndarray:
+    """Rows g, sigma*g', sigma^2*g'' of the 1-D Gaussian and its derivatives, float64 (3, 2r+1)."""
+    r = kernel_radius(sigma, truncate)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * x * x / sigma**2)
+    g /= g.sum()
+    g1 = -x / sigma**2 * g
+    g2 = (x * x / sigma**4 - 1.0 / sigma**2) * g
+    return np.stack([g, sigma * g1, sigma**2 * g2])
+
+
+def reflect_index(index: np.ndarray, n: int) -> np.ndarray:
+    """Map any integer index onto 0..n-1 by symmetric reflection (scipy mode 'reflect', dcba|abcd)."""
+    m = np.mod(index, 2 * n)
+    return np.where(m >= n, 2 * n - 1 - m, m)
+
+
+def band_matrix(kernel: np.ndarray, n: int) -> np.ndarray:
+    """Matrix M (n, n) with M @ x == convolution of x with ``kernel``, boundary folded in by reflection.
+
+    The convolution is true convolution, out[i] = sum_j kernel[j] * x[i - j], as in scipy.
+    """
+    r = (len(kernel) - 1) // 2
+    out = np.arange(n)[:, None]
+    taps = np.arange(-r, r + 1)[None, :]
+    src = reflect_index(out - taps, n)
+    m = np.zeros((n, n))
+    np.add.at(m, (np.broadcast_to(out, src.shape), src), np.broadcast_to(kernel, src.shape))
+    return m

@@ -1,0 +1,194 @@
+"""Image records: everything about an image that features need, computed once (DESIGN.md data flow).
+
+An :class:`ImageRecords` holds a batch of images, padded to common sizes with masks:
+the response pyramid (for sampling at arbitrary x, y, sigma), the salient points and their
+primitive descriptors. Every descriptor has the 15-slot texel layout
+[basis @ level-1 | basis @ level | basis @ level+1] (3.4.2); an edgel fills only the two
+first-order slots of the middle block (3.4.1) and leaves the rest zero.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Sequence
+
+import torch
+from torch import Tensor, nn
+from tqdm.auto import tqdm
+
+from .errors import InputError
+from .images import as_image_batch, load_image
+from .salient import BLOB, CORNER, EDGEL, Points, SalientPoints
+from .scale_space import ScaleSpace, ScaleSpaceOutput
+from .steering import steer
+
+DESCRIPTOR = 15
+EDGEL_SLOTS = slice(5, 7)
+
+
+def kind_slots(kind: Tensor) -> Tensor:
+    """(…, 15) bool mask of the descriptor slots a primitive of ``kind`` uses."""
+    slots = torch.ones(*kind.shape, DESCRIPTOR, dtype=torch.bool, device=kind.device)
+    edgel_slots = torch.zeros(DESCRIPTOR, dtype=torch.bool, device=kind.device)
+    edgel_slots[EDGEL_SLOTS] = True
+    return torch.where((kind == EDGEL)[..., None], edgel_slots, slots)
+
+
+@dataclass
+class ImageRecords:
+    """A padded batch of N image records.
+
+    responses (N, S, 5, H, W); levels (N,) and sizes (N, 2) = (H, W) per image;
+    per point (N, P): x, y (pixels; x = column), level, sigma, theta, kind, strength, mask;
+    descriptors (N, P, 15) in the image frame and canonical (N, P, 15) steered to theta.
+    """
+
+    responses: Tensor
+    levels: Tensor
+    sizes: Tensor
+    x: Tensor
+    y: Tensor
+    level: Tensor
+    sigma: Tensor
+    theta: Tensor
+    kind: Tensor
+    strength: Tensor
+    mask: Tensor
+    descriptors: Tensor
+    canonical: Tensor
+
+    @classmethod
+    def build(cls, space: ScaleSpaceOutput, points: Points) -> "ImageRecords":
+        responses = space.responses
+        batch, levels, _, height, width = responses.shape
+        b, y, x, k = points.image, points.y, points.x, points.level
+        lower = (k - 1).clamp(min=0)
+        upper = (k + 1).clamp(max=levels - 1)
+        blocks = torch.stack([responses[b, lower, :, y, x], responses[b, k, :, y, x], responses[b, upper, :, y, x]], 1)
+        raw = blocks.flatten(1) * kind_slots(points.kind)
+        counts = torch.bincount(b, minlength=batch)
+        width_p = int(counts.max()) if len(b) else 0
+        start = torch.cumsum(counts, 0) - counts
+        slot = torch.arange(len(b), device=b.device) - start[b]
+
+        def pad(values: Tensor, fill=0) -> Tensor:
+            out = torch.full((batch, width_p, *values.shape[1:]), fill, dtype=values.dtype, device=values.device)
+            out[b, slot] = values
+            return out
+
+        dtype = responses.dtype
+        level_sigma = 2.0 ** (k.to(dtype) / 2)
+        return cls(
+            responses=responses,
+            levels=torch.full((batch,), levels, dtype=torch.long, device=responses.device),
+            sizes=torch.tensor([[height, width]] * batch, dtype=torch.long, device=responses.device),
+            x=pad(x.to(dtype)),
+            y=pad(y.to(dtype)),
+            level=pad(k),
+            sigma=pad(level_sigma, 1),
+            theta=pad(points.theta),
+            kind=pad(points.kind, -1),
+            strength=pad(points.strength),
+            mask=pad(torch.ones_like(b, dtype=torch.bool), False),
+            descriptors=pad(raw),
+            canonical=pad(steer(raw, points.theta)),
+        )
+
+    def __len__(self) -> int:
+        return self.responses.shape[0]
+
+    def __getitem__(self, index) -> "ImageRecords":
+        if isinstance(index, int):
+            index = slice(index, index + 1) if index != -1 else slice(-1, None)
+        return ImageRecords(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+
+    def to(self, device) -> "ImageRecords":
+        return ImageRecords(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+    @property
+    def device(self) -> torch.device:
+        return self.responses.device
+
+    def texel_mask(self) -> Tensor:
+        return self.mask & ((self.kind == BLOB) | (self.kind == CORNER))
+
+    def edgel_mask(self) -> Tensor:
+        return self.mask & (self.kind == EDGEL)
+
+    def counts(self) -> dict[str, list[int]]:
+        """Numbers of edgels, blobs and corners per image."""
+        return {
+            "edgels": self.edgel_mask().sum(1).tolist(),
+            "blobs": (self.mask & (self.kind == BLOB)).sum(1).tolist(),
+            "corners": (self.mask & (self.kind == CORNER)).sum(1).tolist(),
+        }
+
+    @staticmethod
+    def cat(records: Sequence["ImageRecords"]) -> "ImageRecords":
+        """Concatenate records of different sizes, padding pyramids and point lists."""
+        if len(records) == 1:
+            return records[0]
+        fills = {"sigma": 1, "kind": -1, "mask": False}
+        joined = {}
+        for f in fields(ImageRecords):
+            parts = [getattr(r, f.name) for r in records]
+            if f.name in ("levels", "sizes"):
+                joined[f.name] = torch.cat(parts)
+                continue
+            shape = [max(p.shape[d] for p in parts) for d in range(1, parts[0].ndim)]
+            joined[f.name] = torch.cat([_pad(p, shape, fills.get(f.name, 0)) for p in parts])
+        return ImageRecords(**joined)
+
+
+def _pad(t: Tensor, shape: list[int], fill) -> Tensor:
+    if list(t.shape[1:]) == shape:
+        return t
+    out = torch.full((t.shape[0], *shape), fill, dtype=t.dtype, device=t.device)
+    out[tuple([slice(None)] + [slice(0, s) for s in t.shape[1:]])] = t
+    return out
+
+
+class FeatureSpace(nn.Module):
+    """Images -> :class:`ImageRecords` (scale space, salient points, descriptors).
+
+    ``forward`` takes one batch of equal-sized images; :meth:`records` takes any sequence of
+    images, arrays or file paths of mixed sizes and returns them as one padded batch in order.
+    """
+
+    def __init__(self, truncate: float = 3.0, rel_threshold: float = 1e-2):
+        super().__init__()
+        self.scale_space = ScaleSpace(truncate)
+        self.salient = SalientPoints(rel_threshold)
+
+    def forward(self, images) -> ImageRecords:
+        space = self.scale_space(images)
+        return ImageRecords.build(space, self.salient(space))
+
+    def records(self, images: Sequence, batch_size: int = 16, progress: bool = False) -> ImageRecords:
+        if len(images) == 0:
+            raise InputError("images: the sequence is empty")
+        device = next(iter(self.scale_space.buffers())).device
+        loaded = []
+        for i, item in enumerate(images):
+            name = str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
+            image = load_image(item) if isinstance(item, (str, Path)) else item
+            batch = as_image_batch(image, name)
+            if batch.shape[0] != 1:
+                raise InputError(f"{name}: expected one image, got a batch of {batch.shape[0]}")
+            try:
+                self.scale_space.num_levels(*batch.shape[-2:])
+            except InputError as err:
+                raise InputError(f"{name}: {err}") from None
+            loaded.append(batch[0].to(device))
+        groups: dict[tuple, list[int]] = {}
+        for i, image in enumerate(loaded):
+            groups.setdefault((tuple(image.shape), image.dtype), []).append(i)
+        chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
+        parts, order = [], []
+        for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
+            parts.append(self(torch.stack([loaded[i] for i in idx])))
+            order.extend(idx)
+        joined = ImageRecords.cat(parts)
+        inverse = torch.empty(len(order), dtype=torch.long)
+        inverse[torch.tensor(order)] = torch.arange(len(order))
+        return joined[inverse.to(joined.device)]

@@ -1,0 +1,89 @@
+"""Slow, obviously-correct per-point evaluation of feature values, for tests and benchmarks.
+
+It shares nothing with the batched path but the records' pyramids and point lists: each
+reference point is visited in a Python loop, alg. 3.6 is followed step by step in scalar
+math, responses are interpolated with ``scipy.ndimage.map_coordinates`` (order 1 in level,
+row, column), steered with the coefficients of eq. 3.8 written out, and eq. 3.13/3.14 applied.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from .features import Conjunction, Feature, LocalFeature
+from .record import ImageRecords
+from .salient import EDGEL
+
+
+def steer_eq38(raw: list[float], theta: float, order: int) -> list[float]:
+    """Steer one basis set of order 1 (2 values) or 2 (3 values) by theta, eq. 3.8."""
+    if order == 1:
+        coef = lambda t, k: math.cos(t - k * math.pi / 2)  # noqa: E731
+    else:
+        coef = lambda t, k: (1 + 2 * math.cos(2 * (t - k * math.pi / 3))) / 3  # noqa: E731
+    n = order + 1
+    return [sum(raw[k] * coef(theta + j * math.pi / n, k) for k in range(n)) for j in range(n)]
+
+
+def _measure(pyramid: np.ndarray, x: float, y: float, sigma: float, theta: float, kind: str):
+    levels, _, height, width = pyramid.shape
+    u = 2 * math.log2(sigma)
+    u = round(u) if abs(u - round(u)) < 1e-4 else u  # the documented snapping rule of sampling.py
+    offsets = [0.0] if kind == "edgel" else [-1.0, 0.0, 1.0]
+    if not (0 <= x <= width - 1 and 0 <= y <= height - 1):
+        return None
+    if u + offsets[0] < 0 or u + offsets[-1] > levels - 1:
+        return None
+    out = []
+    for t in offsets:
+        raw = [float(map_coordinates(pyramid[:, c], [[u + t], [y], [x]], order=1, mode="nearest")[0]) for c in range(5)]
+        out += steer_eq38(raw[:2], theta, 1)
+        if kind == "texel":
+            out += steer_eq38(raw[2:], theta, 2)
+    return out
+
+
+def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: float, sigma: float, theta: float):
+    """Eq. 3.13 for one local feature at one reference point; None where a part falls outside."""
+    observed, pattern = [], []
+    for i, part in enumerate(feature.parts):
+        if i > 0:
+            x += sigma * part.d * math.cos(theta + part.phi)
+            y += sigma * part.d * math.sin(theta + part.phi)
+            theta += part.dtheta
+            sigma *= part.dsigma
+        measured = _measure(pyramid, x, y, sigma, theta, part.kind)
+        if measured is None:
+            return None
+        observed += measured
+        pattern += list(part.vector)
+    o, p = np.array(observed), np.array(pattern)
+    norm = np.linalg.norm(o) * np.linalg.norm(p)
+    return max(0.0, float(o @ p / norm)) if norm > 0 else 0.0
+
+
+def reference_value(feature: Feature, records: ImageRecords, n: int) -> float:
+    """Eq. 3.14 (max over the applicable salient points) in image ``n``, Boolean rules of 3.5.2."""
+    if not isinstance(feature, LocalFeature):
+        a, b = reference_value(feature.a, records, n), reference_value(feature.b, records, n)
+        return a * b if isinstance(feature, Conjunction) else max(a, b)
+    levels = int(records.levels[n])
+    height, width = (int(v) for v in records.sizes[n])
+    pyramid = records.responses[n, :levels, :, :height, :width].double().cpu().numpy()
+    want_edgel = feature.parts[0].kind == "edgel"
+    best = 0.0
+    for p in range(records.mask.shape[1]):
+        if not bool(records.mask[n, p]) or (int(records.kind[n, p]) == EDGEL) != want_edgel:
+            continue
+        args = (float(records.x[n, p]), float(records.y[n, p]), float(records.sigma[n, p]), float(records.theta[n, p]))
+        value = local_value_at(feature, pyramid, *args)
+        if value is not None:
+            best = max(best, value)
+    return best
+
+
+def reference_values(features, records: ImageRecords) -> np.ndarray:
+    """(F, N) values by the per-point loop."""
+    return np.array([[reference_value(f, records, n) for n in range(len(records))] for f in features])

@@ -1,0 +1,44 @@
+"""Steerable basis of first- and second-order Gaussian derivatives (eq. 3.6-3.8).
+
+A *basis block* holds the five responses (G1@0, G1@pi/2, G2@0, G2@pi/3, G2@2pi/3). Steering a
+block by ``angle`` returns the responses of the same basis rotated by ``angle``; the
+canonical block of a point is its block steered by the point's own orientation. Both steering
+maps are orthogonal (tested), so dot products of canonical blocks equal dot products after
+steering one block onto the other, which is what eq. 3.13 asks.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+_DELTA = torch.tensor([[2 * (k - j) * math.pi / 3 for j in range(3)] for k in range(3)], dtype=torch.float64)
+
+
+def steer_block(block: Tensor, angle: Tensor) -> Tensor:
+    """Steer basis blocks (..., 5) by ``angle`` (...) radians with eq. 3.8."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    a0, a1 = block[..., 0], block[..., 1]
+    first = torch.stack([c * a0 + s * a1, -s * a0 + c * a1], dim=-1)
+    b = block[..., 2:5]
+    delta = _DELTA.to(block.device, block.dtype)
+    cos_b = b @ torch.cos(delta).T
+    sin_b = b @ torch.sin(delta).T
+    c2, s2 = torch.cos(2 * angle)[..., None], torch.sin(2 * angle)[..., None]
+    second = (b.sum(-1, keepdim=True) + 2 * (c2 * cos_b - s2 * sin_b)) / 3
+    return torch.cat([first, second], dim=-1)
+
+
+def steer(vector: Tensor, angle: Tensor) -> Tensor:
+    """Steer a vector made of whole basis blocks (..., 5k), e.g. a 15-d texel, by ``angle`` (...)."""
+    blocks = vector.reshape(*vector.shape[:-1], -1, 5)
+    return steer_block(blocks, angle[..., None]).reshape(vector.shape)
+
+
+def cartesian_from_basis(block: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """(Gx, Gy, Gxx, Gxy, Gyy) from basis responses stacked on dim -3 (..., 5, H, W)."""
+    gx, gy, c0, c1, c2 = block.unbind(-3)
+    gyy = (2 * (c1 + c2) - c0) / 3
+    gxy = (c1 - c2) / math.sqrt(3)
+    return gx, gy, c0, gxy, gyy
