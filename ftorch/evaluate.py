@@ -67,8 +67,12 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
     device, dtype = records.device, records.responses.dtype
     vectors, params, kinds = _stack_parts(features, device, dtype)
     n_parts = vectors.shape[1]
-    reference = records.edgel_mask() if features[0].parts[0].kind == "edgel" else records.texel_mask()
-    n_images, n_points = reference.shape
+    reference = _ReferencePoints(records, features[0].parts[0].kind)
+    n_images, n_points = reference.mask.shape
+    if n_points == 0:
+        zeros = torch.zeros(len(features), n_images, device=device, dtype=dtype)
+        nan = torch.full_like(zeros, math.nan)
+        return FeatureValues(zeros, nan, nan, nan, nan)
     chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if n_parts > 1 else 1)))
     results = [
         _local_chunk(vectors[s : s + chunk], params[s : s + chunk], kinds[s : s + chunk], records, reference)
@@ -77,15 +81,28 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
     return FeatureValues(*(torch.cat(parts) for parts in zip(*(r._fields() for r in results))))
 
 
-def _local_chunk(vectors, params, kinds, records: ImageRecords, reference: Tensor) -> FeatureValues:
+class _ReferencePoints:
+    """The salient points of one kind (edgels or texels), packed to the left: (N, P_kind)."""
+
+    def __init__(self, records: ImageRecords, kind: str):
+        applicable = records.edgel_mask() if kind == "edgel" else records.texel_mask()
+        width = int(applicable.sum(1).max()) if applicable.numel() else 0
+        order = torch.argsort((~applicable).to(torch.int8), dim=1, stable=True)[:, :width]
+        self.mask = applicable.gather(1, order)
+        self.x, self.y = records.x.gather(1, order), records.y.gather(1, order)
+        self.sigma, self.theta = records.sigma.gather(1, order), records.theta.gather(1, order)
+        self.canonical = records.canonical.gather(1, order[..., None].expand(-1, -1, records.canonical.shape[-1]))
+
+
+def _local_chunk(vectors, params, kinds, records: ImageRecords, reference: _ReferencePoints) -> FeatureValues:
     n_feat, n_parts = vectors.shape[:2]
-    n_images, n_points = reference.shape
+    n_images, n_points = reference.mask.shape
     shape = (n_feat, n_images, n_points)
-    numerator = torch.einsum("fd,npd->fnp", vectors[:, 0], records.canonical)
-    observed = (records.canonical**2).sum(-1).expand(shape)
-    valid = reference.expand(shape)
-    x, y = records.x.expand(shape), records.y.expand(shape)
-    theta, sigma = records.theta.expand(shape), records.sigma.expand(shape)
+    numerator = torch.einsum("fd,npd->fnp", vectors[:, 0], reference.canonical)
+    observed = (reference.canonical**2).sum(-1).expand(shape)
+    valid = reference.mask.expand(shape)
+    x, y = reference.x.expand(shape), reference.y.expand(shape)
+    theta, sigma = reference.theta.expand(shape), reference.sigma.expand(shape)
     image = torch.arange(n_images, device=records.device)[None, :, None].expand(shape).reshape(-1)
     for i in range(1, n_parts):
         x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None, None] for j in range(4)))
@@ -105,7 +122,7 @@ def _local_chunk(vectors, params, kinds, records: ImageRecords, reference: Tenso
     def at(field: Tensor) -> Tensor:
         return torch.where(found, field.expand(shape).gather(-1, where[..., None])[..., 0], nan)
 
-    return FeatureValues(best.clamp_min(0), at(records.x), at(records.y), at(records.sigma), at(records.theta))
+    return FeatureValues(best.clamp_min(0), at(reference.x), at(reference.y), at(reference.sigma), at(reference.theta))
 
 
 @torch.no_grad()

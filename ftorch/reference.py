@@ -1,4 +1,7 @@
-"""Slow, obviously-correct per-point evaluation of feature values, for tests and benchmarks.
+"""Slow, obviously-correct references for tests and benchmarks.
+
+:func:`scipy_basis` builds the five basis maps with ``scipy.ndimage.gaussian_filter``.
+The rest evaluates feature values point by point.
 
 It shares nothing with the batched path but the records' pyramids and point lists: each
 reference point is visited in a Python loop, alg. 3.6 is followed step by step in scalar
@@ -10,11 +13,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import map_coordinates
+from scipy.ndimage import gaussian_filter, map_coordinates
 
 from .features import Conjunction, Feature, LocalFeature
 from .record import ImageRecords
+from .kernels import kernel_radius
 from .salient import EDGEL
+
+
+def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """The five scale-normalised basis maps (5, H, W) from scipy, with ftorch's zero-sum g''.
+
+    scipy's order-2 filter minus (sum of its sampled g'') times the smoothed image equals the
+    zero-sum second derivative of kernels.py; the rest is scipy as it is (mode 'reflect').
+    """
+    def f(oy, ox):
+        return gaussian_filter(image, sigma, order=(oy, ox), truncate=truncate, mode="reflect")
+
+    r = kernel_radius(sigma, truncate)
+    x = np.arange(-r, r + 1)
+    g = np.exp(-0.5 * x * x / sigma**2)
+    g /= g.sum()
+    dc = ((x * x / sigma**4 - 1 / sigma**2) * g).sum()
+    smooth = f(0, 0)
+    gx, gy, gxy = sigma * f(0, 1), sigma * f(1, 0), sigma**2 * f(1, 1)
+    gxx, gyy = sigma**2 * (f(0, 2) - dc * smooth), sigma**2 * (f(2, 0) - dc * smooth)
+    iso, mixed = 0.25 * gxx + 0.75 * gyy, math.sqrt(3) / 2 * gxy
+    return np.stack([gx, gy, gxx, iso + mixed, iso - mixed])
 
 
 def steer_eq38(raw: list[float], theta: float, order: int) -> list[float]:

@@ -91,42 +91,57 @@ class ScaleSpace(nn.Module):
         return margin[None] >= radii[:, None, None]
 
     def _band_matrices(self, height: int, width: int, levels: int, device, dtype):
+        """Per level: horizontal (3, W, W) for g, g', g'' and vertical row tiles.
+
+        Vertical groups act on one horizontal channel each and carry the basis weights:
+        g -> (Gy, 3/4 Gyy), g' -> (Gx, sqrt3/2 Gxy), g'' -> (Gxx, 1/4 Gxx). Each tile is
+        (first row, last row, first column, 3 x 2T x C matrix): only the columns inside the
+        band of its T output rows, so small scales cost less than a dense product.
+        """
         key = (height, width, levels, str(device), dtype)
         if key not in self._matrices:
             if len(self._matrices) >= 8:
                 self._matrices.pop(next(iter(self._matrices)))
-            rows, cols = [], []
+            plan = []
             for k in range(levels):
                 kern = getattr(self, f"kernels_{k}").cpu().numpy()
-                # horizontal: x_rows @ M.T for g, g', g''
-                rows.append(torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)]))
+                horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
                 v = [torch.from_numpy(band_matrix(kern[c], height)) for c in range(3)]
-                # vertical groups by horizontal channel: g -> (Gy, Gyy); g' -> (Gx, Gxy); g'' -> (Gxx, unused)
-                cols.append(torch.stack([torch.cat([v[1], v[2]]), torch.cat([v[0], v[1]]), torch.cat([v[0], v[1]])]))
-            self._matrices[key] = (
-                torch.stack(rows).to(device=device, dtype=dtype),
-                torch.stack(cols).to(device=device, dtype=dtype),
-            )
+                groups = torch.stack([
+                    torch.stack([v[1], 0.75 * v[2]]),
+                    torch.stack([v[0], _SQRT3_2 * v[1]]),
+                    torch.stack([v[0], 0.25 * v[0]]),
+                ])  # (3 channels, 2 outputs, H, H)
+                tile = max(32, 2 * kernel_radius(self.sigma(k), self.truncate))
+                tiles = []
+                for a in range(0, height, tile):
+                    b = min(a + tile, height)
+                    used = groups[:, :, a:b].abs().sum((0, 1, 2)).nonzero()[:, 0]
+                    c0, c1 = int(used.min()), int(used.max()) + 1
+                    block = groups[:, :, a:b, c0:c1].reshape(3, 2 * (b - a), c1 - c0)
+                    tiles.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
+                plan.append((horizontal.to(device=device, dtype=dtype), tiles))
+            self._matrices[key] = plan
         return self._matrices[key]
 
     def forward(self, images) -> ScaleSpaceOutput:
         x = as_image_batch(images)[:, 0]
         batch, height, width = x.shape
         levels = self.num_levels(height, width)
-        horizontal, vertical = self._band_matrices(height, width, levels, x.device, x.dtype)
+        plan = self._band_matrices(height, width, levels, x.device, x.dtype)
         out = torch.empty(batch, levels, 5, height, width, device=x.device, dtype=x.dtype)
         rows = x.permute(1, 0, 2).reshape(height * batch, width)
-        for k in range(levels):
-            h = torch.matmul(rows, horizontal[k]).view(3, height, batch * width)
-            v = torch.matmul(vertical[k], h).view(6, height, batch, width).permute(2, 0, 1, 3)
-            gy, gyy, gx, gxy, gxx = v[:, 0], v[:, 1], v[:, 2], v[:, 3], v[:, 4]
-            level = out[:, k]
-            level[:, 0] = gx
-            level[:, 1] = gy
-            level[:, 2] = gxx
-            iso = 0.25 * gxx + 0.75 * gyy
-            mixed = _SQRT3_2 * gxy
-            torch.add(iso, mixed, out=level[:, 3])
-            torch.sub(iso, mixed, out=level[:, 4])
+        for k, (horizontal, tiles) in enumerate(plan):
+            h = torch.matmul(rows, horizontal).view(3, height, batch * width)
+            for a, b, c0, c1, block in tiles:
+                v = torch.matmul(block, h[:, c0:c1]).view(6, b - a, batch, width).permute(2, 0, 1, 3)
+                gy, gyy, gx, gxy, gxx, gxx4 = v.unbind(1)
+                level = out[:, k, :, a:b]
+                level[:, 0] = gx
+                level[:, 1] = gy
+                level[:, 2] = gxx
+                iso = torch.add(gxx4, gyy, out=level[:, 3])
+                torch.sub(iso, gxy, out=level[:, 4])
+                iso.add_(gxy)
         sigmas = torch.tensor([self.sigma(k) for k in range(levels)], device=x.device, dtype=x.dtype)
         return ScaleSpaceOutput(out, sigmas, self.valid_mask(height, width, levels, x.device))

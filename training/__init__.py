@@ -1,0 +1,1 @@
+"""Experiment runner for ftorch: protocols, data sets, reports, benchmarks."""

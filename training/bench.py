@@ -1,0 +1,198 @@
+"""Benchmarks: ``python -m training.bench features [--quick] [--device cpu|cuda] --json PATH``.
+
+Everything is measured in one run against baselines computed in the same run:
+- pyramid: the five basis maps at all scales for 32 images of 128x128, ftorch vs OpenCV's
+  ``cv2.sepFilter2D`` with the very same sampled kernels (same radius, same reflect border);
+  both are checked against scipy at the tests' tolerance on one image.
+- record: the whole per-image record (pyramid, scale functions, salient points, descriptors).
+- texel / geometric3 / boolean: (feature, image) evaluations per second, and the ratio to the
+  per-point reference loop of ``ftorch.reference`` timed on a subset.
+Timings are the best of several repeats after a warm-up.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ftorch import FeatureSpace, ScaleSpace
+from ftorch.evaluate import feature_values
+from ftorch.features import Conjunction, Disjunction
+from ftorch.generate import expand_geometric, random_texel
+from ftorch.kernels import derivative_kernels
+from ftorch.reference import reference_values, scipy_basis
+from training.builtin import builtin_scene
+from training.devices import resolve_device
+
+TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
+
+
+def _once(fn, device: torch.device) -> tuple[float, object]:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    start = time.perf_counter()
+    result = fn()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return time.perf_counter() - start, result
+
+
+def _timed(fn, repeats: int, device: torch.device) -> tuple[float, object]:
+    """Best of ``repeats`` after a warm-up; the previous result is freed before each call."""
+    return _interleaved([fn], repeats, device)[0]
+
+
+def _interleaved(fns, repeats: int, device: torch.device) -> list[tuple[float, object]]:
+    """Best time of each function, the functions taking turns so that load drifts hit all alike."""
+    results = [fn() for fn in fns]  # warm-up
+    best = [float("inf")] * len(fns)
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            results[i] = None
+            seconds, results[i] = _once(fn, device)
+            best[i] = min(best[i], seconds)
+    return list(zip(best, results))
+
+
+def bench_images(count: int, size: int = 128) -> np.ndarray:
+    """The built-in scene turned and shifted: ``count`` distinct float32 images."""
+    scene = builtin_scene(size)
+    out = []
+    for i in range(count):
+        warp = cv2.getRotationMatrix2D(((size - 1) / 2, (size - 1) / 2), 360.0 * i / count, 1.0)
+        out.append(cv2.warpAffine(scene, warp, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT))
+    return np.stack(out).astype(np.float32)
+
+
+def opencv_basis(images: np.ndarray, sigmas: list[float], truncate: float) -> np.ndarray:
+    """The same five maps with cv2.sepFilter2D (which correlates: kernels are flipped)."""
+    kernels = [derivative_kernels(s, truncate)[:, ::-1].astype(np.float32) for s in sigmas]
+    r3 = np.float32(np.sqrt(3) / 2)
+    out = np.empty((len(images), len(sigmas), 5, *images.shape[1:]), np.float32)
+    for b, image in enumerate(images):
+        for k, (g, g1, g2) in enumerate(kernels):
+            gx = cv2.sepFilter2D(image, -1, g1, g, borderType=cv2.BORDER_REFLECT)
+            gy = cv2.sepFilter2D(image, -1, g, g1, borderType=cv2.BORDER_REFLECT)
+            gxx = cv2.sepFilter2D(image, -1, g2, g, borderType=cv2.BORDER_REFLECT)
+            gxy = cv2.sepFilter2D(image, -1, g1, g1, borderType=cv2.BORDER_REFLECT)
+            gyy = cv2.sepFilter2D(image, -1, g, g2, borderType=cv2.BORDER_REFLECT)
+            iso = cv2.addWeighted(gxx, 0.25, gyy, 0.75, 0.0)
+            out[b, k, 0], out[b, k, 1], out[b, k, 2] = gx, gy, gxx
+            out[b, k, 3] = cv2.scaleAdd(gxy, r3, iso)
+            out[b, k, 4] = cv2.scaleAdd(gxy, -r3, iso)
+    return out
+
+
+def worst_error(maps: np.ndarray, image: np.ndarray, sigmas: list[float], valid: np.ndarray, truncate: float) -> float:
+    """Largest interior error against scipy, relative to each level's largest response."""
+    worst = 0.0
+    for k, sigma in enumerate(sigmas):
+        if not valid[k].any():
+            continue
+        expected = scipy_basis(image.astype(np.float64), sigma, truncate)
+        err = np.abs(maps[k].astype(np.float64) - expected)[:, valid[k]].max()
+        worst = max(worst, float(err / np.abs(expected).max()))
+    return worst
+
+
+def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> dict:
+    space = ScaleSpace().to(device)
+    batch = torch.from_numpy(images).to(device)
+    sigmas = [space.sigma(k) for k in range(space.num_levels(*images.shape[1:]))]
+    (seconds, out), (cv_seconds, cv_maps) = _interleaved(
+        [lambda: space(batch), lambda: opencv_basis(images, sigmas, space.truncate)], repeats, device)
+    valid = out.valid.cpu().numpy()
+    ours_err = worst_error(out.responses[0].cpu().numpy(), images[0], sigmas, valid, space.truncate)
+    cv_err = worst_error(cv_maps[0], images[0], sigmas, valid, space.truncate)
+    n = len(images)
+    return {
+        "batch": n, "size": list(images.shape[1:]), "levels": len(sigmas),
+        "images_per_s": n / seconds, "opencv_images_per_s": n / cv_seconds,
+        "ratio_vs_opencv": cv_seconds / seconds,
+        "max_rel_error": ours_err, "opencv_max_rel_error": cv_err, "tolerance": TOLERANCE,
+        "within_tolerance": ours_err <= TOLERANCE and cv_err <= TOLERANCE,
+    }
+
+
+def evaluation_section(features, records, repeats: int, device: torch.device, reference_features, reference_images) -> dict:
+    seconds, _ = _timed(lambda: feature_values(features, records), repeats, device)
+    evals = len(features) * len(records)
+    cpu_records = records[: reference_images].to("cpu")
+    start = time.perf_counter()
+    reference_values(features[:reference_features], cpu_records)
+    ref_seconds = time.perf_counter() - start
+    ref_rate = reference_features * reference_images / ref_seconds
+    rate = evals / seconds
+    return {"features": len(features), "images": len(records), "evals_per_s": rate,
+            "reference_evals_per_s": ref_rate, "ratio_vs_reference": rate / ref_rate}
+
+
+def features(args) -> dict:
+    device = resolve_device(args.device)
+    repeats = 4 if args.quick else 10
+    images = bench_images(32)
+    report = {"device": str(device), "torch": torch.__version__, "threads": torch.get_num_threads(),
+              "opencv_threads": cv2.getNumThreads(), "quick": bool(args.quick)}
+    report["pyramid"] = pyramid_section(images, device, repeats)
+
+    space = FeatureSpace().to(device)
+    batch = torch.from_numpy(images).to(device)
+    seconds, records = _timed(lambda: space(batch), repeats, device)
+    counts = records.counts()
+    report["record"] = {"images_per_s": len(images) / seconds,
+                        "texels_per_image": float(np.mean(np.add(counts["blobs"], counts["corners"]))),
+                        "edgels_per_image": float(np.mean(counts["edgels"]))}
+
+    g = torch.Generator().manual_seed(0)
+    n_feat = 16 if args.quick else 64
+    texels = [random_texel(records, i % len(records), g) for i in range(n_feat)]
+    geometric3 = [expand_geometric(expand_geometric(t, records, i % len(records), g), records, i % len(records), g)
+                  for i, t in enumerate(texels[: n_feat // 2])]
+    boolean = [(Conjunction if i % 2 else Disjunction)(texels[i], geometric3[i]) for i in range(n_feat // 2)]
+    ref_images = 2
+    report["texel"] = evaluation_section(texels, records, repeats, device, 4, ref_images)
+    report["geometric3"] = evaluation_section(geometric3, records, repeats, device, 2, ref_images)
+    report["boolean"] = evaluation_section(boolean, records, repeats, device, 2, ref_images)
+    return report
+
+
+def print_report(report: dict) -> None:
+    p = report["pyramid"]
+    print(f"device {report['device']}, torch {report['torch']}, {report['threads']} threads")
+    print(f"pyramid   {p['batch']}x{p['size'][0]}x{p['size'][1]}, {p['levels']} levels: "
+          f"{p['images_per_s']:8.1f} images/s  opencv {p['opencv_images_per_s']:8.1f}  ratio {p['ratio_vs_opencv']:.2f}")
+    print(f"          max error vs scipy {p['max_rel_error']:.1e} (opencv {p['opencv_max_rel_error']:.1e}), "
+          f"tolerance {p['tolerance']:.0e}: {'ok' if p['within_tolerance'] else 'EXCEEDED'}")
+    r = report["record"]
+    print(f"record    {r['images_per_s']:8.1f} images/s  ({r['texels_per_image']:.0f} texels, "
+          f"{r['edgels_per_image']:.0f} edgels per image)")
+    for key in ("texel", "geometric3", "boolean"):
+        e = report[key]
+        print(f"{key:10s}{e['evals_per_s']:10.0f} evals/s  reference {e['reference_evals_per_s']:8.2f}  "
+              f"ratio {e['ratio_vs_reference']:.0f}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    p = commands.add_parser("features", help="feature-space benchmark")
+    p.add_argument("--quick", action="store_true", help="fewer repeats and features (under a minute)")
+    p.add_argument("--device", default="cpu", help="cpu, cuda[:N] or auto (default cpu)")
+    p.add_argument("--json", help="write the figures to this JSON file")
+    args = parser.parse_args(argv)
+    report = features(args)
+    print_report(report)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
