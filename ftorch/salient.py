@@ -16,6 +16,7 @@
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -51,7 +52,9 @@ class SalientPoints(nn.Module):
         return self.rel_threshold * strongest.flatten(1).amax(1)
 
     def _scale_maxima(self, f: Tensor, valid: Tensor) -> Tensor:
-        pooled = F.max_pool3d(f[:, None], kernel_size=3, stride=1, padding=1)[:, 0]
+        pooled = f
+        for dim in (1, 2, 3):  # the 3x3x3 maximum is separable
+            pooled = _max3(pooled, dim)
         levels = f.shape[1]
         interior = torch.zeros(levels, dtype=torch.bool, device=f.device)
         interior[1 : levels - 1] = True
@@ -95,6 +98,14 @@ class SalientPoints(nn.Module):
         kinds = torch.cat([torch.full_like(f[0], f[4]) for f in found])[order]
         image, y, x, level, strength = cat(0), cat(1), cat(2), cat(3), cat(5)
         return Points(image, x, y, level, theta[image, y, x], kinds, strength)
+
+
+def _max3(f: Tensor, dim: int) -> Tensor:
+    """Maximum over each element and its two neighbours along ``dim`` (outside counts as -inf)."""
+    pad = [0, 0] * (f.ndim - 1 - dim) + [1, 1]
+    p = F.pad(f, pad, value=-math.inf)
+    n = f.shape[dim]
+    return torch.maximum(torch.maximum(p.narrow(dim, 0, n), p.narrow(dim, 1, n)), p.narrow(dim, 2, n))
 
 
 def _bilinear(maps: Tensor, x: Tensor, y: Tensor) -> Tensor:
