@@ -14,7 +14,7 @@ from typing import Sequence
 
 import torch
 from torch import Tensor, nn
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from .errors import InputError
 from .images import as_image_batch, load_image
