@@ -9,6 +9,7 @@ first-order slots of the middle block (3.4.1) and leaves the rest zero.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -93,6 +94,14 @@ class ImageRecords:
             descriptors=pad(raw),
             canonical=pad(steer(raw, points.theta)),
         )
+
+    @cached_property
+    def sampling_rows(self) -> Tensor:
+        """The pyramid as overlapping rows of 20 values for sampling: row pixel*(S+3) + j holds
+        the 5 basis responses at levels j-1, j, j+1, j+2 of that pixel (zero outside the pyramid).
+        """
+        padded = torch.nn.functional.pad(self.responses.permute(0, 3, 4, 1, 2), (0, 0, 1, 2)).contiguous()
+        return padded.as_strided((padded.numel() // 5 - 3, 20), (5, 1))
 
     def __len__(self) -> int:
         return self.responses.shape[0]

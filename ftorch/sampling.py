@@ -44,16 +44,16 @@ def sample_primitives(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor
     high = torch.where(edgel, u, u + 1)
     valid = inside & (low >= 0) & (high <= n_levels - 1)
 
-    lo = torch.floor(u)
-    w = (u - lo)[:, None]
-    lv = (lo.long()[:, None] + torch.arange(-1, 3, device=u.device)).clamp(0, levels - 1)
+    lo = torch.floor(u).clamp(0, levels - 1)
+    w = (u - lo).clamp(0, 1)[:, None, None]
     x0, y0 = torch.floor(x), torch.floor(y)
     wx, wy = (x - x0)[:, None], (y - y0)[:, None]
     xs = (x0.long()[:, None] + torch.arange(2, device=x.device)).clamp(0, width - 1)
     ys = (y0.long()[:, None] + torch.arange(2, device=y.device)).clamp(0, height - 1)
-    corners = responses[image[:, None, None, None], lv[:, :, None, None], :, ys[:, None, :, None], xs[:, None, None, :]]
-    weights_y = torch.cat([1 - wy, wy], 1)
-    weights_x = torch.cat([1 - wx, wx], 1)
-    planar = torch.einsum("mlyxc,my,mx->mlc", corners, weights_y, weights_x)  # (M, 4, 5)
-    blocks = (1 - w[:, :, None]) * planar[:, 0:3] + w[:, :, None] * planar[:, 1:4]  # levels u-1, u, u+1
+    pixel = ((image[:, None, None] * height + ys[:, :, None]) * width + xs[:, None, :]).reshape(-1, 4)
+    rows = (pixel * (levels + 3) + lo.long()[:, None]).reshape(-1)
+    corners = records.sampling_rows.index_select(0, rows).view(-1, 4, 20)  # (M, 4 corners, 4 levels x 5)
+    weights = (torch.cat([1 - wy, wy], 1)[:, :, None] * torch.cat([1 - wx, wx], 1)[:, None, :]).reshape(-1, 1, 4)
+    planar = torch.bmm(weights, corners).view(-1, 4, 5)  # levels lo-1 .. lo+2
+    blocks = (1 - w) * planar[:, 0:3] + w * planar[:, 1:4]  # levels u-1, u, u+1
     return blocks.flatten(1) * kind_slots(kind), valid
