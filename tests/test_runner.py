@@ -1,0 +1,54 @@
+"""The command line: salient pictures, the default job, clear errors, and the benchmark's report."""
+import json
+import subprocess
+import sys
+
+import cv2
+
+from training import bench, run
+
+
+def test_salient_writes_one_png_per_image_and_prints_counts(tmp_path, coil_dir, capsys):
+    images = [str(coil_dir / "obj1__0.png"), str(coil_dir / "obj2__10.png")]
+    assert run.main(["salient", *images, "--out", str(tmp_path), "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    summary = json.loads((tmp_path / "salient.json").read_text())
+    assert len(printed) == 2 and len(summary) == 2
+    for line, row in zip(printed, summary):
+        assert f"{row['edgels']} edgels, {row['texels']} texels" in line
+        picture = cv2.imread(row["figure"])
+        assert picture is not None and picture.shape[1] > 2 * picture.shape[0]  # two panels side by side
+
+
+def test_default_job_runs_on_the_builtin_scene(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "training.run"], cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "builtin-scene.png:" in done.stdout and (tmp_path / "runs/salient/builtin-scene_salient.png").is_file()
+
+
+def test_bad_input_is_one_line_and_exit_code_2(tmp_path):
+    bad = tmp_path / "bad.png"
+    bad.write_text("no pixels here")
+    done = subprocess.run([sys.executable, "-m", "training.run", "salient", str(bad), "--out", str(tmp_path)],
+                          capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.strip() == f"error: {bad}: not a readable image file"
+    assert "Traceback" not in done.stderr
+
+
+def test_unavailable_device_is_refused_clearly(tmp_path, monkeypatch):
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    assert run.main(["salient", "--out", str(tmp_path), "--device", "cuda"]) == 2
+
+
+def test_benchmark_quick_report_has_every_key(tmp_path):
+    target = tmp_path / "bench.json"
+    assert bench.main(["features", "--quick", "--json", str(target)]) == 0
+    report = json.loads(target.read_text())
+    p = report["pyramid"]
+    for key in ("images_per_s", "opencv_images_per_s", "ratio_vs_opencv"):
+        assert p[key] > 0
+    assert p["within_tolerance"], "ftorch or OpenCV maps exceed the scipy tolerance"
+    assert report["record"]["images_per_s"] > 0
+    for section in ("texel", "geometric3", "boolean"):
+        assert report[section]["evals_per_s"] > 0 and report[section]["ratio_vs_reference"] > 0
