@@ -80,5 +80,3 @@ def save_rgb(path, picture: np.ndarray) -> None:
     if not cv2.imwrite(str(path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR)):
         raise OSError(f"could not write {path}")
 
-
-KIND_COLOURS = {EDGEL: EDGEL_COLOUR, BLOB: BLOB_COLOUR, CORNER: CORNER_COLOUR}

@@ -18,11 +18,11 @@ from torch import Tensor
 from .errors import InputError
 from .features import Conjunction, Disjunction, Feature, LocalFeature
 from .record import EDGEL_SLOTS, ImageRecords
-from .salient import EDGEL
+from .salient import BLOB, EDGEL
 from .sampling import advance, sample_primitives
 from .steering import steer
 
-KIND_CODE = {"edgel": EDGEL, "texel": 1}
+KIND_CODE = {"edgel": EDGEL, "texel": BLOB}  # sampling tells edgels from texels only
 
 
 @dataclass

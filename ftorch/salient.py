@@ -26,7 +26,6 @@ from torch import Tensor, nn
 from .scale_space import ScaleSpaceOutput
 
 EDGEL, BLOB, CORNER = 0, 1, 2
-KIND_NAMES = ("edgel", "blob", "corner")
 
 
 @dataclass

@@ -5,7 +5,8 @@ log sigma), applied to the scale-normalised responses. A texel at u reads levels
 an edgel reads the first-order pair at u. At integer positions and levels this returns the
 stored values exactly, so a feature measured from an image has value 1 at its own reference
 point. Level indices within 1e-4 of an integer are snapped to it (float32 sigmas such as
-sqrt(2) would otherwise fall just outside a level). A sample is valid when (x, y) lies inside the image and the levels it reads exist.
+sqrt(2) would otherwise fall just outside a level). A sample is valid when (x, y) lies inside
+the image and the levels it reads exist.
 """
 from __future__ import annotations
 

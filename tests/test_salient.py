@@ -3,7 +3,7 @@ import math
 
 import torch
 
-from ftorch import BLOB, EDGEL, FeatureSpace, ScaleSpace
+from ftorch import BLOB, EDGEL, FeatureSpace
 from ftorch.kernels import kernel_radius
 from ftorch.steering import steer
 
