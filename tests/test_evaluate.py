@@ -110,3 +110,10 @@ def test_cuda_and_cpu_agree():
     features = sampled_features(cpu_records, seed=9)
     torch.testing.assert_close(feature_values(features, gpu_records).values.cpu(),
                                feature_values(features, cpu_records).values, rtol=1e-4, atol=1e-4)
+
+
+def test_same_seed_gives_the_same_features_and_another_seed_differs(records):
+    first, again = sampled_features(records, seed=40), sampled_features(records, seed=40)
+    other = sampled_features(records, seed=41)
+    assert [f.to_json() for f in first] == [f.to_json() for f in again]
+    assert [f.to_json() for f in first] != [f.to_json() for f in other]
