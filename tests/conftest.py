@@ -17,7 +17,7 @@ def scene() -> np.ndarray:
 @pytest.fixture(scope="session")
 def coil_dir() -> Path:
     if not COIL.is_dir():
-        pytest.skip(f"COIL data not found at {COIL} (shared data beside the checkout)")
+        pytest.skip(f"COIL data (../shared/data/coil-20-32) not found at {COIL}")
     return COIL
 
 
