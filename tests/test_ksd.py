@@ -1,0 +1,58 @@
+"""KSD cut-points and distinctive power against scipy.stats.ks_2samp and hand-made cases."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import ks_2samp
+
+from ftorch.ksd import ksd
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distance_and_location_agree_with_scipy(seed):
+    rng = np.random.default_rng(seed)
+    n_a, n_b = rng.integers(3, 40, size=2)
+    rows = []
+    for f in range(8):
+        a = rng.normal(0, 1, n_a)
+        b = rng.normal(rng.uniform(-2, 2), rng.uniform(0.5, 2), n_b)
+        if f % 3 == 0:  # many ties
+            a, b = np.round(a, 0), np.round(b, 0)
+        rows.append(np.concatenate([a, b]))
+    values = torch.tensor(np.array(rows))
+    discriminated = torch.tensor([True] * n_a + [False] * n_b)
+    result = ksd(values, ~discriminated, discriminated)
+    for f, row in enumerate(rows):
+        ref = ks_2samp(row[:n_a], row[n_a:])
+        assert result.distance[f].item() == pytest.approx(ref.statistic, abs=1e-12)
+        if ref.statistic == 0:
+            continue
+        # our cut-point lies just above one of the values where the two cdfs differ by the KSD
+        cut = result.cutpoint[f].item()
+        below = row[row < cut].max()
+        cdf_a, cdf_b = (row[:n_a] <= below).mean(), (row[n_a:] <= below).mean()
+        assert abs(cdf_a - cdf_b) == pytest.approx(ref.statistic, abs=1e-12)
+        assert not np.any((row > below) & (row < cut))
+        expected = ref.statistic if cdf_a > cdf_b else 0.0
+        assert result.distinctive[f].item() == pytest.approx(expected, abs=1e-12)
+
+
+def test_hand_made_cases():
+    values = torch.tensor([
+        [0.1, 0.2, 0.3, 0.8, 0.9],   # class scores high: characteristic, perfectly separated
+        [0.8, 0.9, 0.7, 0.1, 0.2],   # class scores low: not characteristic
+        [0.5, 0.5, 0.5, 0.5, 0.5],   # all tied: no cut-point
+        [0.1, math.nan, 0.3, 0.9, math.nan],  # unmeasured instances are ignored
+    ])
+    characterized = torch.tensor([False, False, False, True, True])
+    result = ksd(values, characterized, ~characterized)
+    assert result.distance.tolist() == [1.0, 1.0, 0.0, 1.0]
+    assert result.distinctive.tolist() == [1.0, 0.0, 0.0, 1.0]
+    assert result.cutpoint[0].item() == pytest.approx(0.55) and math.isnan(result.cutpoint[2].item())
+    assert result.cutpoint[3].item() == pytest.approx(0.6)
+
+
+def test_empty_group_gives_zero():
+    result = ksd(torch.tensor([[0.1, 0.2]]), torch.tensor([False, False]), torch.tensor([True, True]))
+    assert result.distance.item() == 0.0 and result.distinctive.item() == 0.0
