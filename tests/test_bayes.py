@@ -1,0 +1,103 @@
+"""Class networks: fast exact inference equals pgmpy, counting, arcs of 4.4.1, BIF export."""
+import warnings
+
+import numpy as np
+import pytest
+
+from ftorch.bayes import CLASS, ClassNetwork, compound_arcs
+from ftorch.features import Conjunction, Disjunction, Geometric, Part, Texel
+
+warnings.filterwarnings("ignore", category=FutureWarning)
+
+
+def random_network(rng, n_features: int, deterministic: bool = False) -> ClassNetwork:
+    net = ClassNetwork("c")
+    for i in range(n_features):
+        earlier = list(range(i))
+        rng.shuffle(earlier)
+        parents = earlier[: rng.integers(0, min(2, i) + 1)]
+        children = [k for k in earlier[len(parents):][: rng.integers(0, 2)]]
+        try:
+            net.add_feature(i, parents=parents, children=children)
+        except ValueError:
+            net.add_feature(i, parents=parents)
+    net.prior = np.array([0.0, 1.0]) + np.array([1, -1]) * rng.uniform(0.1, 0.9)
+    for key in net.features:
+        p = rng.uniform(0.02, 0.98, size=net.cpt[key].shape[:-1])
+        if deterministic:
+            p = np.where(rng.random(p.shape) < 0.3, np.round(p), p)
+        net.cpt[key] = np.stack([1 - p, p], axis=-1)
+    return net
+
+
+def pgmpy_query(net: ClassNetwork, variables, evidence):
+    from pgmpy.inference import VariableElimination
+
+    name = {CLASS: CLASS, **{k: f"f{i}" for i, k in enumerate(net.features)}}
+    result = VariableElimination(net.to_pgmpy()).query(
+        [name[v] for v in variables], evidence={name[k]: v for k, v in evidence.items()}, show_progress=False)
+    order = [result.variables.index(name[v]) for v in variables]
+    return np.transpose(result.values, order)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_fast_inference_equals_pgmpy_variable_elimination(seed):
+    rng = np.random.default_rng(seed)
+    net = random_network(rng, n_features=int(rng.integers(3, 9)))
+    assert net.to_pgmpy().check_model()
+    for _ in range(4):
+        observed = [k for k in net.features if rng.random() < 0.5]
+        evidence = {k: int(rng.integers(0, 2)) for k in observed}
+        np.testing.assert_allclose(net.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
+        for query in (k for k in net.features if k not in evidence):
+            np.testing.assert_allclose(net.joint(evidence, query), pgmpy_query(net, [CLASS, query], evidence),
+                                       rtol=0, atol=1e-9)
+
+
+def test_mutual_information_vanishes_for_observed_or_certain_classes():
+    rng = np.random.default_rng(1)
+    net = random_network(rng, 4)
+    assert net.mutual_information(3, {}) > 0
+    assert net.mutual_information(3, {3: 1}) == pytest.approx(0, abs=1e-12)
+    net.prior = np.array([0.0, 1.0])
+    assert net.mutual_information(3, {}) == pytest.approx(0, abs=1e-12)
+
+
+def test_counting_with_unknown_values_and_the_zero_count_rule():
+    net = ClassNetwork("duck")
+    net.add_feature("a")
+    net.add_feature("b", parents=["a"])
+    present = np.array([1, 1, 1, 0, 0, 0], bool)
+    states = {"a": np.array([1, 1, 0, 0, 0, -1]), "b": np.array([1, 0, 1, 0, 0, 0])}
+    net.estimate(present, states)
+    assert net.prior.tolist() == [0.5, 0.5]
+    np.testing.assert_allclose(net.cpt["a"], [[1.0, 0.0], [1 / 3, 2 / 3]])  # class absent: a seen 0, 0 (one unknown)
+    # b given (class, a): (0,0): two zeros; (0,1): never seen -> 1/2; (1,0): one 1; (1,1): one 1 and one 0
+    np.testing.assert_allclose(net.cpt["b"], [[[1.0, 0.0], [0.5, 0.5]], [[0.0, 1.0], [0.5, 0.5]]])
+
+
+def test_arcs_follow_compound_structure():
+    texel = Texel([1.0] * 15)
+    edgel = Part("edgel", (1.0, 0.0), phi=0.3, d=2.0)
+    two = Geometric((Part("texel", texel.vector), edgel))
+    three = Geometric((*two.parts, Part("edgel", (0.5, 0.5), d=1.0)))
+    both = Conjunction(texel, three)
+    either = Disjunction(texel, two)
+    assert compound_arcs(three, [texel, two]) == ([], [texel, two])  # geometric -> its components
+    assert compound_arcs(texel, [three, either]) == ([three], [either])  # component -> disjunction
+    assert compound_arcs(both, [texel, three, two]) == ([], [texel, three, two])
+    assert compound_arcs(either, [texel, two]) == ([texel, two], [])
+
+
+def test_cycles_and_unknown_arcs_are_refused_and_bif_exports():
+    net = ClassNetwork("x")
+    net.add_feature("a")
+    net.add_feature("b", parents=["a"])
+    with pytest.raises(ValueError, match="cycle"):
+        net.add_feature("c", parents=["b"], children=["a"])
+    with pytest.raises(ValueError, match="not in the network"):
+        net.add_feature("d", parents=["zzz"])
+    bif = net.to_bif()
+    assert "variable class" in bif and "probability ( f1 | class, f0 )" in bif
+    net.remove_feature("a")
+    assert net.parents["b"] == [] and net.cpt["b"].shape == (2, 2)
