@@ -1,0 +1,69 @@
+"""Def. 4.5 categories, def. 4.6 accuracy, and alg. 4.4 on hand-made networks."""
+import numpy as np
+import pytest
+
+from ftorch.bayes import ClassNetwork
+from ftorch.recognition import accuracy, outcome, recognize
+
+
+@pytest.mark.parametrize("recognized, true, expected", [
+    ({"A"}, {"A"}, "correct"),
+    ({"A", "B"}, {"A", "B"}, "correct"),
+    (set(), set(), "correct"),
+    ({"C"}, {"A"}, "wrong"),
+    ({"A", "C"}, {"A", "B"}, "wrong"),      # table 4.1, first row: A, C recognized; A, B true
+    ({"A", "B", "C"}, {"A", "B"}, "ambiguous"),  # table 4.1, second row
+    (set(), {"A", "B"}, "ignorant"),        # table 4.1, last rows
+    ({"A"}, {"A", "B"}, "ignorant"),
+    ({"C", "D"}, {"A"}, "confused"),
+    ({"A", "C", "D"}, {"A", "B"}, "confused"),
+    ({"C"}, {"A", "B"}, "confused"),
+    ({"C"}, set(), "ambiguous"),  # no true class: all (none) recognized, plus a false one
+])
+def test_outcome_categories(recognized, true, expected):
+    assert outcome(recognized, true) == expected
+
+
+def test_accuracy_definition():
+    assert accuracy({"A"}, {"A"}, 6) == 1.0
+    assert accuracy(set(), {"A"}, 6) == pytest.approx(1 / 6)  # ignorant counts as chance
+    assert accuracy({"A", "B", "C"}, {"A"}, 6) == pytest.approx(1 / 3)  # ambiguous with two false
+    assert accuracy({"C"}, {"A"}, 6) == 0.0
+    assert accuracy({"A", "C"}, {"A", "B"}, 6) == pytest.approx(1 / 3)
+    assert accuracy(set(), {"A", "B"}, 4) == pytest.approx(0.5)
+
+
+def two_class_networks():
+    """Class A has a perfect feature 'a'; class B a noisy feature 'b' and a perfect one 'bb'."""
+    a = ClassNetwork("A")
+    a.add_feature("a", threshold=0.5)
+    a.prior = np.array([0.5, 0.5])
+    a.cpt["a"] = np.array([[1.0, 0.0], [0.0, 1.0]])
+    b = ClassNetwork("B")
+    b.add_feature("b", threshold=0.5)
+    b.add_feature("bb", threshold=0.7)
+    b.prior = np.array([0.6, 0.4])
+    b.cpt["b"] = np.array([[0.8, 0.2], [0.3, 0.7]])
+    b.cpt["bb"] = np.array([[1.0, 0.0], [0.0, 1.0]])
+    return {"A": a, "B": b}
+
+
+def test_recognition_queries_by_information_and_stops_when_certain():
+    nets = two_class_networks()
+    values = {"a": 0.9, "b": 0.2, "bb": 0.6}
+    calls = []
+    result = recognize(nets, lambda f: calls.append(f) or values[f])
+    # 'a' and 'bb' each settle their class (1 bit and H(0.4) bits); 'a' first, then 'bb'; 'b' is then useless
+    assert result.queried == ["a", "bb"] == calls
+    assert result.posteriors == {"A": 1.0, "B": 0.0} and result.recognized == {"A"}
+    assert result.beliefs[0] == {"A": 0.5, "B": 0.4} and len(result.beliefs) == 3
+    assert result.beliefs[1]["A"] == 1.0 and result.beliefs[1]["B"] == 0.4
+
+
+def test_negative_evidence_counts_and_impossible_evidence_is_skipped():
+    nets = two_class_networks()
+    nets["B"].cpt["bb"] = np.array([[1.0, 0.0], [0.5, 0.5]])  # 'bb' never present without B
+    result = recognize(nets, lambda f: {"a": 0.1, "b": 0.9, "bb": 0.1}[f])
+    assert result.posteriors["A"] == 0.0  # absence of a perfect feature rules A out
+    expected = nets["B"].posterior({"bb": 0, "b": 1})
+    assert result.posteriors["B"] == pytest.approx(expected)
