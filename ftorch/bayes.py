@@ -11,8 +11,9 @@ relies on this: a feature can drive its class entropy to zero, 4.4.4); a parent 
 never seen gets 1/2 (no information). The prior of the class node is counted the same way.
 
 Inference (:meth:`ClassNetwork.joint`) is exact: nodes that are neither evidence, query nor an
-ancestor of either are barren and dropped; the CPTs of the rest, sliced at the evidence, are
-contracted with one ``einsum``. Tests prove it equal to pgmpy's VariableElimination.
+ancestor of either are barren and dropped; nodes without feature arcs contribute their CPT
+column directly (closed form); the CPTs of the remaining linked nodes, sliced at the evidence,
+are contracted with one ``einsum``. Tests prove it equal to pgmpy's VariableElimination.
 """
 from __future__ import annotations
 
@@ -25,6 +26,14 @@ from .features import Conjunction, Disjunction, Feature, Geometric, Texel
 
 CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
+
+
+def _information(joint: np.ndarray) -> np.ndarray:
+    """Mutual information in bits of joint tables (k, 2, 2); 0 where a table is NaN."""
+    outer = joint.sum(2, keepdims=True) * joint.sum(1, keepdims=True)
+    ratio = np.where(joint > 0, joint / np.where(outer > 0, outer, 1), 1)
+    info = np.sum(np.where(joint > 0, joint * np.log2(ratio), 0), axis=(1, 2))
+    return np.where(np.isfinite(info), info, 0.0)
 
 
 def components(feature: Feature) -> list[Feature]:
@@ -136,21 +145,37 @@ class ClassNetwork:
         if query is not None and query in evidence:
             raise ValueError(f"query {query!r} is already observed")
         relevant = self._ancestors([*evidence, *([query] if query is not None else [])])
-        nodes = [k for k in self.features if k in relevant]
+        linked = self._linked()
+        # arc-free nodes hang off the class node alone: their factors multiply in directly
+        weight = self.prior.copy()
+        for key in evidence:
+            if key not in linked:
+                weight = weight * self.cpt[key][:, evidence[key]]
+        nodes = [k for k in self.features if k in relevant and k in linked]
+        if nodes:
+            weight = self._contract(weight, nodes, evidence, query if query in linked else None)
+        if query is not None and query not in linked:
+            weight = weight[:, None] * self.cpt[query]
+        total = weight.sum()
+        return weight / total if total > 0 else np.full_like(weight, math.nan)
+
+    def _linked(self) -> set:
+        """Feature nodes with a feature parent or a feature child."""
+        return {p for ps in self.parents.values() for p in ps} | {f for f, ps in self.parents.items() if ps}
+
+    def _contract(self, weight: np.ndarray, nodes: list, evidence: dict, query) -> np.ndarray:
+        """Exact marginal over the class (and query) of the linked part of the network, by einsum."""
         if len(nodes) + 1 > len(_LETTERS):
             raise ValueError(f"network of class {self.label!r} is too large for exact inference ({len(nodes)} nodes)")
         letter = {CLASS: _LETTERS[0], **{k: _LETTERS[i + 1] for i, k in enumerate(nodes)}}
-        operands, subscripts = [self.prior], [letter[CLASS]]
+        operands, subscripts = [weight], [letter[CLASS]]
         for key in nodes:
-            table = self.cpt[key]
             axes = [CLASS, *self.parents[key], key]
             index = tuple(evidence[a] if a in evidence else slice(None) for a in axes)
-            operands.append(table[index])
+            operands.append(self.cpt[key][index])
             subscripts.append("".join(letter[a] for a in axes if a not in evidence))
         output = letter[CLASS] + (letter[query] if query is not None else "")
-        joint = np.einsum(",".join(subscripts) + "->" + output, *operands, optimize="greedy")
-        total = joint.sum()
-        return joint / total if total > 0 else np.full_like(joint, math.nan)
+        return np.einsum(",".join(subscripts) + "->" + output, *operands, optimize=len(operands) > 3)
 
     def posterior(self, evidence: dict[Hashable, int]) -> float:
         """P(class present | evidence)."""
@@ -160,12 +185,30 @@ class ClassNetwork:
         """I(C, F_query | evidence) in bits, eq. 4.2; 0 for an observed feature (alg. 4.4)."""
         if query in evidence:
             return 0.0
-        joint = self.joint(evidence, query)
-        if not np.isfinite(joint).all():
-            return 0.0
-        outer = joint.sum(1, keepdims=True) * joint.sum(0, keepdims=True)
-        nonzero = joint > 0
-        return float(np.sum(joint[nonzero] * np.log2(joint[nonzero] / outer[nonzero])))
+        return float(_information(self.joint(evidence, query)[None])[0])
+
+    def informations(self, evidence: dict[Hashable, int]) -> dict[Hashable, float]:
+        """I(C, F | evidence) for every unobserved feature at once.
+
+        A node without feature arcs is d-separated from all evidence by the class node, so
+        P(C, F | e) = P(C | e) P(F | C): one inference serves all such nodes (closed form);
+        nodes with feature arcs take the exact einsum path.
+        """
+        open_nodes = [f for f in self.features if f not in evidence]
+        if not open_nodes:
+            return {}
+        linked = self._linked()
+        naive = [f for f in open_nodes if f not in linked]
+        out = {}
+        if naive:
+            posterior = self.joint(evidence)
+            tables = np.stack([self.cpt[f] for f in naive])  # (k, class, state)
+            info = _information(posterior[None, :, None] * tables)
+            out.update(zip(naive, info.tolist()))
+        for f in open_nodes:
+            if f in linked:
+                out[f] = self.mutual_information(f, evidence)
+        return out
 
     def to_pgmpy(self):
         """The network as a pgmpy ``DiscreteBayesianNetwork`` (nodes 'class', 'f0', 'f1', ...)."""

@@ -60,11 +60,10 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     while True:
         best, best_info = None, tolerance
         for label, net in networks.items():
+            informations = net.informations(evidence[label])
             for key in net.features:
-                if key in values:
-                    continue
-                info = net.mutual_information(key, evidence[label])
-                if info > best_info:
+                info = informations.get(key, 0.0)
+                if key not in values and info > best_info:
                     best, best_info = key, info
         if best is None:
             break

@@ -101,3 +101,18 @@ def test_cycles_and_unknown_arcs_are_refused_and_bif_exports():
     assert "variable class" in bif and "probability ( f1 | class, f0 )" in bif
     net.remove_feature("a")
     assert net.parents["b"] == [] and net.cpt["b"].shape == (2, 2)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_all_informations_at_once_equal_one_by_one(seed):
+    rng = np.random.default_rng(100 + seed)
+    net = random_network(rng, n_features=8)
+    for extra in range(3):  # add arc-free nodes, which take the closed form
+        net.add_feature(f"naive{extra}")
+        p = rng.uniform(0.05, 0.95, size=2)
+        net.cpt[f"naive{extra}"] = np.stack([1 - p, p], axis=-1)
+    evidence = {k: int(rng.integers(0, 2)) for k in net.features if rng.random() < 0.4}
+    together = net.informations(evidence)
+    assert set(together) == {k for k in net.features if k not in evidence}
+    for key, info in together.items():
+        assert info == pytest.approx(net.mutual_information(key, evidence), abs=1e-12)

@@ -1,0 +1,72 @@
+"""The instance list (4.4.1): every probability the learner uses is counted from it.
+
+One row per distinct image (an image's feature values never change, so presenting it again
+adds no information), holding its true classes and the values of the features measured on it
+so far; values not measured are NaN and are left out of every count.
+"""
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterable
+
+import numpy as np
+
+
+class InstanceList:
+    def __init__(self):
+        self.images: list[Hashable] = []
+        self.labels: list[frozenset] = []
+        self.features: list[Hashable] = []
+        self._row: dict[Hashable, int] = {}
+        self._column: dict[Hashable, int] = {}
+        self._values = np.zeros((0, 0))
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def add(self, image: Hashable, labels: Iterable[Hashable]) -> int:
+        """Row of ``image``, added with its true classes if new."""
+        if image in self._row:
+            return self._row[image]
+        self._row[image] = len(self.images)
+        self.images.append(image)
+        self.labels.append(frozenset(labels))
+        self._values = np.vstack([self._values, np.full((1, self._values.shape[1]), np.nan)])
+        return self._row[image]
+
+    def column(self, feature: Hashable) -> int:
+        if feature not in self._column:
+            self._column[feature] = len(self.features)
+            self.features.append(feature)
+            self._values = np.hstack([self._values, np.full((self._values.shape[0], 1), np.nan)])
+        return self._column[feature]
+
+    def set(self, image: Hashable, feature: Hashable, value: float) -> None:
+        column = self.column(feature)  # may widen the array: look it up first
+        self._values[self._row[image], column] = value
+
+    def get(self, image: Hashable, feature: Hashable) -> float:
+        """Value of ``feature`` on ``image``, NaN if not measured (or unknown)."""
+        row, column = self._row.get(image), self._column.get(feature)
+        return np.nan if row is None or column is None else float(self._values[row, column])
+
+    def values(self, feature: Hashable) -> np.ndarray:
+        """Values of one feature over all instances (n,), NaN where not measured."""
+        column = self._column.get(feature)
+        return np.full(len(self), np.nan) if column is None else self._values[:, column].copy()
+
+    def has(self, label: Hashable) -> np.ndarray:
+        """(n,) bool: instances whose true classes include ``label``."""
+        return np.array([label in labels for labels in self.labels], dtype=bool)
+
+    def has_any(self, labels: Iterable[Hashable]) -> np.ndarray:
+        labels = set(labels)
+        return np.array([bool(labels & own) for own in self.labels], dtype=bool)
+
+    def forget(self, feature: Hashable) -> None:
+        """Drop a feature's column (a discarded feature)."""
+        column = self._column.pop(feature, None)
+        if column is None:
+            return
+        self.features.pop(column)
+        self._values = np.delete(self._values, column, axis=1)
+        self._column = {f: i for i, f in enumerate(self.features)}
