@@ -31,9 +31,21 @@ def _vector(values, kind: str) -> tuple[float, ...]:
     return vec
 
 
+class _CachedHash:
+    """Features are dictionary keys everywhere (networks, instance list): hash each one once."""
+
+    def __hash__(self) -> int:
+        cached = self.__dict__.get("_hash")
+        if cached is None:
+            cached = hash((type(self).__name__, *(getattr(self, f) for f in self.__dataclass_fields__)))
+            object.__setattr__(self, "_hash", cached)
+        return cached
+
+
 @dataclass(frozen=True)
-class Part:
+class Part(_CachedHash):
     """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3)."""
+    __hash__ = _CachedHash.__hash__  # dataclass would replace an inherited one
 
     kind: str
     vector: tuple[float, ...]
@@ -59,7 +71,7 @@ class Part:
                 "d": self.d, "dsigma": self.dsigma}
 
 
-class Feature:
+class Feature(_CachedHash):
     """Base of all features: JSON round trip and structural size."""
 
     def to_dict(self) -> dict:
@@ -111,6 +123,7 @@ class LocalFeature(Feature):
 
 @dataclass(frozen=True)
 class Texel(LocalFeature):
+    __hash__ = _CachedHash.__hash__
     vector: tuple[float, ...]
 
     def __post_init__(self):
@@ -126,6 +139,7 @@ class Texel(LocalFeature):
 
 @dataclass(frozen=True)
 class Geometric(LocalFeature):
+    __hash__ = _CachedHash.__hash__
     parts: tuple[Part, ...]
 
     def __post_init__(self):
@@ -140,6 +154,7 @@ class Geometric(LocalFeature):
 
 @dataclass(frozen=True)
 class _Boolean(Feature):
+    __hash__ = _CachedHash.__hash__
     a: Feature
     b: Feature
 

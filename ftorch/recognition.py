@@ -55,15 +55,16 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
               tolerance: float = 1e-12) -> Recognition:
     """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14)."""
     evidence = {label: {} for label in networks}
-    beliefs = [{label: net.posterior({}) for label, net in networks.items()}]
+    belief = {label: net.posterior({}) for label, net in networks.items()}
+    informative = {label: net.informations({}) for label, net in networks.items()}  # only changed nets are redone
+    beliefs = [dict(belief)]
     queried, values = [], {}
     while True:
         best, best_info = None, tolerance
         for label, net in networks.items():
-            informations = net.informations(evidence[label])
             for key in net.features:
-                info = informations.get(key, 0.0)
-                if key not in values and info > best_info:
+                info = informative[label].get(key, 0.0)
+                if info > best_info and key not in values:
                     best, best_info = key, info
         if best is None:
             break
@@ -73,8 +74,10 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
         for label, net in networks.items():
             if best in net:
                 trial = {**evidence[label], best: int(value > net.threshold[best])}
-                if net.posterior(trial) == net.posterior(trial):  # not NaN: the evidence is possible
-                    evidence[label] = trial
-        beliefs.append({label: net.posterior(evidence[label]) for label, net in networks.items()})
+                posterior = net.posterior(trial)
+                if posterior == posterior:  # not NaN: the evidence is possible
+                    evidence[label], belief[label] = trial, posterior
+                    informative[label] = net.informations(trial)
+        beliefs.append(dict(belief))
     posteriors = beliefs[-1]
     return Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
