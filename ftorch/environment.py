@@ -29,9 +29,6 @@ class ImageSet:
     def __len__(self) -> int:
         return len(self.labels)
 
-    def classes(self) -> set:
-        return set().union(*self.labels)
-
     def record(self, image: int) -> ImageRecords:
         if image not in self._single:
             self._single[image] = self.all_records[image]

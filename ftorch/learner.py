@@ -68,7 +68,8 @@ class DistinctiveFeatureLearner:
         return recognize(self.networks, lambda f: self._value(env, image, f))
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
-    def _discretize(self, label, feature) -> float:
+    def _discretize(self, label, feature) -> tuple[float, float]:
+        """(cut-point, distinctive power) of a node against the classes it discriminates (def. 4.2)."""
         present = self.instances.has(label)
         against = self.discriminates.get((label, feature)) or frozenset()
         discriminated = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present

@@ -14,9 +14,6 @@ from dataclasses import dataclass, field
 
 from .bayes import ClassNetwork
 
-OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
-
-
 def outcome(recognized: Iterable[Hashable], true: Iterable[Hashable]) -> str:
     """Category of a recognition result (def. 4.5)."""
     recognized, true = set(recognized), set(true)
