@@ -144,13 +144,13 @@ class ClassNetwork:
         """
         if query is not None and query in evidence:
             raise ValueError(f"query {query!r} is already observed")
-        relevant = self._ancestors([*evidence, *([query] if query is not None else [])])
         linked = self._linked()
         # arc-free nodes hang off the class node alone: their factors multiply in directly
         weight = self.prior.copy()
         for key in evidence:
             if key not in linked:
                 weight = weight * self.cpt[key][:, evidence[key]]
+        relevant = self._ancestors([*evidence, *([query] if query is not None else [])]) if linked else set()
         nodes = [k for k in self.features if k in relevant and k in linked]
         if nodes:
             weight = self._contract(weight, nodes, evidence, query if query in linked else None)
