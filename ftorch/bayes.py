@@ -10,10 +10,14 @@ likelihood, so a configuration seen only with one outcome gets probability 0 or 
 relies on this: a feature can drive its class entropy to zero, 4.4.4); a parent configuration
 never seen gets 1/2 (no information). The prior of the class node is counted the same way.
 
-Inference (:meth:`ClassNetwork.joint`) is exact: nodes that are neither evidence, query nor an
-ancestor of either are barren and dropped; nodes without feature arcs contribute their CPT
-column directly (closed form); the CPTs of the remaining linked nodes, sliced at the evidence,
-are contracted with one ``einsum``. Tests prove it equal to pgmpy's VariableElimination.
+Inference is exact and factorised. Given the class node, the feature nodes fall into
+independent *groups*, the connected components of the feature arcs:
+P(C, e) = P(C) prod_groups P(e_group | C). A node without feature arcs is a group of one
+(closed form: its CPT column). A linked group of m <= ``TABLE_LIMIT`` nodes is compiled, once
+per estimate, into the table P(configuration | C) over its 2^m configurations; then the
+likelihood of any evidence is a masked sum, and P(F = 1, e_group | C) for every node of the
+group at once is one matrix product with the configuration bits. Larger groups are contracted
+with ``einsum`` (variable elimination). Tests prove all paths equal to pgmpy's VariableElimination.
 """
 from __future__ import annotations
 
@@ -29,11 +33,18 @@ _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
 def _information(joint: np.ndarray) -> np.ndarray:
-    """Mutual information in bits of joint tables (k, 2, 2); 0 where a table is NaN."""
+    """Mutual information in bits of normalised joint tables (k, 2, 2); 0 where a table is NaN."""
+    joint = np.where(joint > 0, joint, 0.0)  # NaN (impossible evidence) and zeros contribute nothing
     outer = joint.sum(2, keepdims=True) * joint.sum(1, keepdims=True)
-    ratio = np.where(joint > 0, joint / np.where(outer > 0, outer, 1), 1)
-    info = np.sum(np.where(joint > 0, joint * np.log2(ratio), 0), axis=(1, 2))
-    return np.where(np.isfinite(info), info, 0.0)
+    ratio = np.divide(joint, outer, out=np.ones_like(joint), where=joint > 0)
+    return (joint * np.log2(ratio)).sum((1, 2))
+
+
+def _normalised(tables: np.ndarray) -> np.ndarray:
+    """Each table (k, ...) divided by its sum; NaN where the sum is zero (impossible evidence)."""
+    axes = tuple(range(1, tables.ndim))
+    total = tables.sum(axis=axes, keepdims=True)
+    return np.where(total > 0, tables / np.where(total > 0, total, 1), math.nan)
 
 
 def components(feature: Feature) -> list[Feature]:
@@ -63,19 +74,107 @@ def compound_arcs(feature: Feature, present) -> tuple[list, list]:
     return parents, children
 
 
+class _Tables(dict):
+    """The CPTs of a network: assigning or deleting one invalidates the compiled groups."""
+
+    def __init__(self, network: "ClassNetwork"):
+        super().__init__()
+        self._network = network
+
+    def __setitem__(self, key, value):
+        super().__setitem__(key, np.asarray(value, dtype=float))
+        self._network._compiled = self._network._blank = None
+
+    def __delitem__(self, key):
+        super().__delitem__(key)
+        self._network._compiled = self._network._blank = None
+
+
+class _Group:
+    """A connected component of feature arcs: node positions, and its table or None (einsum)."""
+
+    def __init__(self, network: "ClassNetwork", keys: list):
+        self.keys = keys
+        self.positions = np.array([network.features.index(k) for k in keys], dtype=np.int64)
+        m = len(keys)
+        self.table = None
+        self.weights = 1 << np.arange(m)
+        if m <= network.TABLE_LIMIT:
+            self.codes = np.arange(2**m)
+            self.bits = (self.codes[:, None] >> np.arange(m)[None, :]) & 1  # (2^m, m)
+            local = {k: i for i, k in enumerate(keys)}
+            table = np.ones((2, 2**m))
+            for key in keys:
+                index = tuple(self.bits[:, local[p]] for p in network.parents[key]) + (self.bits[:, local[key]],)
+                table = table * network.cpt[key][(slice(None), *index)]
+            self.table = table
+
+    def mask(self, state: np.ndarray) -> np.ndarray:
+        """(2^m,) configurations that agree with the evidence state of the group's nodes."""
+        own = state[self.positions]
+        observed = own >= 0
+        return (self.codes & self.weights[observed].sum()) == (self.weights * (own > 0)).sum()
+
+
+class _Compiled:
+    """Arc-free nodes stacked for the closed form; linked groups compiled (see module doc)."""
+
+    def __init__(self, network: "ClassNetwork"):
+        linked = {p for ps in network.parents.values() for p in ps} | {f for f, ps in network.parents.items() if ps}
+        self.singles = np.array([i for i, k in enumerate(network.features) if k not in linked], dtype=np.int64)
+        self.single_cpt = (np.stack([network.cpt[network.features[i]] for i in self.singles])
+                           if len(self.singles) else np.zeros((0, 2, 2)))
+        neighbours = {k: set() for k in linked}
+        for key, parents in network.parents.items():
+            for p in parents:
+                neighbours[key].add(p)
+                neighbours[p].add(key)
+        self.groups, seen = [], set()
+        for key in network.features:
+            if key in linked and key not in seen:
+                component, todo = [], [key]
+                seen.add(key)
+                while todo:
+                    node = todo.pop()
+                    component.append(node)
+                    for other in neighbours[node] - seen:
+                        seen.add(other)
+                        todo.append(other)
+                order = {k: i for i, k in enumerate(network.features)}
+                self.groups.append(_Group(network, sorted(component, key=order.__getitem__)))
+
+
 class ClassNetwork:
-    """The Bayesian network of one class: prior, feature nodes, arcs, CPTs and thresholds."""
+    """The Bayesian network of one class: prior, feature nodes, arcs, CPTs and thresholds.
+
+    Evidence is a dict feature -> state (0 or 1), or for the fast path a state array over
+    ``features`` with -1 for unobserved nodes. CPTs are replaced, never edited in place.
+    """
+
+    TABLE_LIMIT = 14  # linked groups up to this many nodes are compiled to tables
 
     def __init__(self, label: Hashable):
         self.label = label
         self.features: list[Hashable] = []
         self.parents: dict[Hashable, list[Hashable]] = {}
         self.threshold: dict[Hashable, float] = {}
+        self._compiled: _Compiled | None = None
+        self._blank: tuple[float, np.ndarray] | None = None
         self.prior = np.array([0.5, 0.5])
-        self.cpt: dict[Hashable, np.ndarray] = {}  # P(F | class, parents...) indexed [c, p1..pk, f]
+        self.cpt: dict[Hashable, np.ndarray] = _Tables(self)  # P(F | class, parents...) indexed [c, p1..pk, f]
 
     def __contains__(self, key) -> bool:
         return key in self.parents
+
+    @property
+    def prior(self) -> np.ndarray:
+        """P(class) as (absent, present)."""
+        return self._prior
+
+    @prior.setter
+    def prior(self, value) -> None:
+        self._prior = np.asarray(value, dtype=float)
+        self._blank = None
 
     def add_feature(self, key: Hashable, parents=(), children=(), threshold: float = 0.5) -> None:
         """Add a feature node with an arc from the class node and the given feature arcs."""
@@ -114,15 +213,6 @@ class ClassNetwork:
                     todo.append(child)
         return out
 
-    def _ancestors(self, keys) -> set:
-        out, todo = set(), list(keys)
-        while todo:
-            for parent in self.parents[todo.pop()]:
-                if parent not in out:
-                    out.add(parent)
-                    todo.append(parent)
-        return out | set(keys)
-
     def estimate(self, present: np.ndarray, states: dict[Hashable, np.ndarray]) -> None:
         """Count prior and CPTs from instances: ``present`` (n,) bool, ``states`` key -> (n,) in {0, 1, -1 unknown}."""
         present = np.asarray(present, dtype=bool)
@@ -137,38 +227,45 @@ class ClassNetwork:
             total = counts.sum(-1, keepdims=True)
             self.cpt[key] = np.where(total > 0, counts / np.maximum(total, 1), 0.5)
 
-    def joint(self, evidence: dict[Hashable, int], query: Hashable | None = None) -> np.ndarray:
-        """P(class | evidence) (2,), or P(class, query | evidence) (2, 2) for an unobserved feature.
+    # -- exact inference -----------------------------------------------------------------------
+    def compiled(self) -> _Compiled:
+        if self._compiled is None:
+            self._compiled = _Compiled(self)
+        return self._compiled
 
-        NaN where the evidence has probability zero under the network.
-        """
-        if query is not None and query in evidence:
-            raise ValueError(f"query {query!r} is already observed")
-        linked = self._linked()
-        # arc-free nodes hang off the class node alone: their factors multiply in directly
-        weight = self.prior.copy()
-        for key in evidence:
-            if key not in linked:
-                weight = weight * self.cpt[key][:, evidence[key]]
-        relevant = self._ancestors([*evidence, *([query] if query is not None else [])]) if linked else set()
-        nodes = [k for k in self.features if k in relevant and k in linked]
-        if nodes:
-            weight = self._contract(weight, nodes, evidence, query if query in linked else None)
-        if query is not None and query not in linked:
-            weight = weight[:, None] * self.cpt[query]
-        total = weight.sum()
-        return weight / total if total > 0 else np.full_like(weight, math.nan)
+    def state(self, evidence: dict[Hashable, int]) -> np.ndarray:
+        """Evidence dict -> state array over ``features`` (-1 = unobserved)."""
+        out = np.full(len(self.features), -1, dtype=np.int64)
+        for key, value in evidence.items():
+            out[self.features.index(key)] = int(value)
+        return out
 
-    def _linked(self) -> set:
-        """Feature nodes with a feature parent or a feature child."""
-        return {p for ps in self.parents.values() for p in ps} | {f for f, ps in self.parents.items() if ps}
+    def _factors(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P(C) prod_singles P(e_i | C)) (2,) and each group's likelihood P(e_group | C) (G, 2)."""
+        c = self.compiled()
+        weight = self.prior
+        observed = state[c.singles] >= 0
+        if observed.any():
+            weight = weight * c.single_cpt[observed, :, state[c.singles[observed]]].prod(0)
+        likes = np.ones((len(c.groups), 2))
+        for g, group in enumerate(c.groups):
+            likes[g] = group.table @ group.mask(state) if group.table is not None else self._contract(group, state)
+        return weight, likes
 
-    def _contract(self, weight: np.ndarray, nodes: list, evidence: dict, query) -> np.ndarray:
-        """Exact marginal over the class (and query) of the linked part of the network, by einsum."""
+    def _contract(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
+        """P(e_group | C) (2,), or P(e_group, query | C) (2, 2), of a large group by einsum."""
+        evidence = {k: int(state[i]) for k, i in zip(group.keys, group.positions) if state[i] >= 0}
+        todo, relevant = [*evidence, *([query] if query is not None else [])], set()
+        while todo:  # ancestors of evidence and query; other nodes are barren and sum to one
+            node = todo.pop()
+            if node not in relevant:
+                relevant.add(node)
+                todo.extend(self.parents[node])
+        nodes = [k for k in group.keys if k in relevant]
         if len(nodes) + 1 > len(_LETTERS):
             raise ValueError(f"network of class {self.label!r} is too large for exact inference ({len(nodes)} nodes)")
         letter = {CLASS: _LETTERS[0], **{k: _LETTERS[i + 1] for i, k in enumerate(nodes)}}
-        operands, subscripts = [weight], [letter[CLASS]]
+        operands, subscripts = [np.ones(2)], [letter[CLASS]]
         for key in nodes:
             axes = [CLASS, *self.parents[key], key]
             index = tuple(evidence[a] if a in evidence else slice(None) for a in axes)
@@ -177,9 +274,68 @@ class ClassNetwork:
         output = letter[CLASS] + (letter[query] if query is not None else "")
         return np.einsum(",".join(subscripts) + "->" + output, *operands, optimize=len(operands) > 3)
 
+    def evaluate(self, state: np.ndarray) -> tuple[float, np.ndarray]:
+        """(P(class present | e), I(C, F | e) in bits for every feature node (F,), 0 where observed), eq. 4.2.
+
+        The result for empty evidence is cached until the prior or a CPT changes.
+        """
+        blank = not (state >= 0).any()
+        if blank and self._blank is not None:
+            return self._blank
+        c = self.compiled()
+        weight, likes = self._factors(state)
+        joint = weight * likes.prod(0)
+        total = joint.sum()
+        out = np.zeros(len(self.features))
+        if not total > 0:
+            return math.nan, out
+        posterior = joint / total
+        open_rows = state[c.singles] < 0
+        if open_rows.any():
+            out[c.singles[open_rows]] = _information(posterior[None, :, None] * c.single_cpt[open_rows])
+        n_groups = len(c.groups)
+        if n_groups:
+            before = np.vstack([np.ones((1, 2)), np.cumprod(likes, 0)])[:n_groups]  # product of the groups before g
+            after = np.vstack([np.cumprod(likes[::-1], 0)[::-1], np.ones((1, 2))])[1:]  # ... and after g
+        for g, group in enumerate(c.groups):
+            open_nodes = np.flatnonzero(state[group.positions] < 0)
+            if not len(open_nodes):
+                continue
+            rest = weight * before[g] * after[g] / total
+            if group.table is not None:
+                present = (group.table * group.mask(state)) @ group.bits[:, open_nodes]  # P(F_j = 1, e_g | C) (2, k)
+                both = np.stack([likes[g][:, None] - present, present], axis=-1).transpose(1, 0, 2)
+            else:
+                both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
+            out[group.positions[open_nodes]] = _information(rest[None, :, None] * both)
+        result = (float(posterior[1]), out)
+        if blank:
+            self._blank = result
+        return result
+
+    def joint(self, evidence: dict[Hashable, int], query: Hashable | None = None) -> np.ndarray:
+        """P(class | evidence) (2,), or P(class, query | evidence) (2, 2) for an unobserved feature.
+
+        NaN where the evidence has probability zero under the network.
+        """
+        if query is not None and query in evidence:
+            raise ValueError(f"query {query!r} is already observed")
+        state = self.state(evidence)
+        weight, likes = self._factors(state)
+        if query is None:
+            return _normalised((weight * likes.prod(0))[None])[0]
+        c = self.compiled()
+        at = self.features.index(query)
+        if at in c.singles:
+            table = (weight * likes.prod(0))[:, None] * self.cpt[query]
+            return _normalised(table[None])[0]
+        g = next(g for g, group in enumerate(c.groups) if at in group.positions)
+        rest = weight * np.prod(np.delete(likes, g, 0), 0)
+        return _normalised((rest[:, None] * self._contract(c.groups[g], state, query))[None])[0]
+
     def posterior(self, evidence: dict[Hashable, int]) -> float:
         """P(class present | evidence)."""
-        return float(self.joint(evidence)[1])
+        return self.evaluate(self.state(evidence))[0]
 
     def mutual_information(self, query: Hashable, evidence: dict[Hashable, int]) -> float:
         """I(C, F_query | evidence) in bits, eq. 4.2; 0 for an observed feature (alg. 4.4)."""
@@ -188,27 +344,9 @@ class ClassNetwork:
         return float(_information(self.joint(evidence, query)[None])[0])
 
     def informations(self, evidence: dict[Hashable, int]) -> dict[Hashable, float]:
-        """I(C, F | evidence) for every unobserved feature at once.
-
-        A node without feature arcs is d-separated from all evidence by the class node, so
-        P(C, F | e) = P(C | e) P(F | C): one inference serves all such nodes (closed form);
-        nodes with feature arcs take the exact einsum path.
-        """
-        open_nodes = [f for f in self.features if f not in evidence]
-        if not open_nodes:
-            return {}
-        linked = self._linked()
-        naive = [f for f in open_nodes if f not in linked]
-        out = {}
-        if naive:
-            posterior = self.joint(evidence)
-            tables = np.stack([self.cpt[f] for f in naive])  # (k, class, state)
-            info = _information(posterior[None, :, None] * tables)
-            out.update(zip(naive, info.tolist()))
-        for f in open_nodes:
-            if f in linked:
-                out[f] = self.mutual_information(f, evidence)
-        return out
+        """I(C, F | evidence) for every unobserved feature (dict form of :meth:`evaluate`)."""
+        info = self.evaluate(self.state(evidence))[1]
+        return {k: float(info[i]) for i, k in enumerate(self.features) if k not in evidence}
 
     def to_pgmpy(self):
         """The network as a pgmpy ``DiscreteBayesianNetwork`` (nodes 'class', 'f0', 'f1', ...)."""

@@ -1,33 +1,64 @@
-"""The task environment the learner acts in (4.4): labelled images and random example views."""
+"""The task environment the learner acts in (4.4): labelled images, their records and feature values.
+
+Feature values are cached: each (feature, image) value is computed once, in one batch with the
+other values missing at that call, and never recomputed. Batched float arithmetic may differ
+in the last bit with the batch's composition, so this rule is what makes a run reproducible and
+resumable bit for bit: the cache is part of a run's state (:meth:`ImageSet.cache_state`).
+"""
 from __future__ import annotations
 
+import base64
+import zlib
 from collections.abc import Hashable, Iterable, Sequence
+from pathlib import Path
 
+import numpy as np
 import torch
 
+from .errors import InputError
 from .evaluate import feature_values
 from .features import Feature
+from .images import as_image_batch, load_image
 from .record import FeatureSpace, ImageRecords
 
 
 class ImageSet:
     """Images with their sets of true classes; records are computed once, on construction.
 
-    ``examples(label, n)`` draws n random images containing ``label`` (alg. 4.8 step 2).
+    ``images`` are file paths, arrays or tensors of any sizes; ``names`` default to the file
+    names (or ``image N``). ``examples(label, n)`` draws n random images containing ``label``
+    (alg. 4.8 step 2).
     """
 
     def __init__(self, images: Sequence, labels: Sequence[Iterable[Hashable]], space: FeatureSpace | None = None,
-                 progress: bool = False):
+                 names: Sequence[str] | None = None, progress: bool = False):
         if len(images) != len(labels):
-            raise ValueError(f"{len(images)} images but {len(labels)} label sets")
+            raise InputError(f"{len(images)} images but {len(labels)} label sets")
+        if len(images) == 0:
+            raise InputError("image set: no images")
         self.labels = [frozenset(l) for l in labels]
+        self.names = list(names) if names is not None else [
+            Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
+        self.images = [self._grey(x, i) for i, x in enumerate(images)]
         self.space = space or FeatureSpace()
         with torch.no_grad():
-            self.all_records = self.space.records(list(images), progress=progress)
+            self.all_records = self.space.records(self.images, progress=progress)
         self._single: dict[int, ImageRecords] = {}
+        self._row: dict[Feature, int] = {}
+        self._cache = np.zeros((0, len(self.labels)))
+
+    @staticmethod
+    def _grey(item, i: int) -> torch.Tensor:
+        if isinstance(item, (str, Path)):
+            return load_image(item)
+        return as_image_batch(item, f"images[{i}]")[0, 0]
 
     def __len__(self) -> int:
         return len(self.labels)
+
+    def classes(self) -> list:
+        """All classes that occur, sorted."""
+        return sorted({c for labels in self.labels for c in labels}, key=str)
 
     def record(self, image: int) -> ImageRecords:
         if image not in self._single:
@@ -37,11 +68,51 @@ class ImageSet:
     def records(self, images: Sequence[int]) -> ImageRecords:
         return self.all_records[torch.tensor(list(images), device=self.all_records.device)]
 
-    def values(self, features: Sequence[Feature], images: Sequence[int]) -> torch.Tensor:
-        """Feature values (F, len(images)), eq. 3.14."""
-        if len(images) == 1:
-            return feature_values(features, self.record(images[0])).values
-        return feature_values(features, self.records(images)).values
+    def values(self, features: Sequence[Feature], images: Sequence[int]) -> np.ndarray:
+        """Feature values (F, len(images)), eq. 3.14: cached ones as they are, missing ones in one batch."""
+        features, images = list(features), list(images)
+        for f in features:
+            if f not in self._row:
+                self._row[f] = len(self._row)
+        if len(self._row) > len(self._cache):
+            grown = np.full((max(len(self._row), 2 * len(self._cache)), len(self)), np.nan)
+            grown[: len(self._cache)] = self._cache
+            self._cache = grown
+        rows = np.array([self._row[f] for f in features], dtype=np.int64)
+        block = self._cache[np.ix_(rows, images)]
+        missing = [features[j] for j in np.flatnonzero(np.isnan(block).any(1))]
+        if missing:
+            missing = list(dict.fromkeys(missing))
+            computed = self._compute(missing, images)
+            for f, row in zip(missing, computed):
+                current = self._cache[self._row[f], images]
+                self._cache[self._row[f], images] = np.where(np.isnan(current), row, current)
+            block = self._cache[np.ix_(rows, images)]
+        return block
+
+    def _compute(self, features: list[Feature], images: list[int]) -> np.ndarray:
+        records = self.record(images[0]) if len(images) == 1 else self.records(images)
+        return feature_values(features, records).values.double().cpu().numpy()
+
+    def cache_state(self) -> dict:
+        """The value cache as JSON-ready data: feature descriptions and the zlib-compressed float64 table."""
+        features = sorted(self._row, key=self._row.__getitem__)
+        table = np.ascontiguousarray(self._cache[: len(features)], dtype="<f8")
+        return {"features": [f.to_dict() for f in features], "shape": list(table.shape),
+                "values": base64.b64encode(zlib.compress(table.tobytes(), 6)).decode("ascii")}
+
+    def load_cache_state(self, state: dict) -> None:
+        """Restore a cache written by :meth:`cache_state` for this same image set."""
+        try:
+            features = [Feature.from_dict(d) for d in state["features"]]
+            shape = tuple(int(v) for v in state["shape"])
+            table = np.frombuffer(zlib.decompress(base64.b64decode(state["values"])), dtype="<f8")
+        except (KeyError, TypeError, ValueError, zlib.error) as err:
+            raise InputError(f"value cache is damaged: {err}") from None
+        if shape != (len(features), len(self)) or table.size != shape[0] * shape[1]:
+            raise InputError(f"value cache holds {shape}, expected ({len(features)}, {len(self)}) for this image set")
+        self._row = {f: i for i, f in enumerate(features)}
+        self._cache = table.reshape(shape).copy()
 
     def examples(self, label: Hashable, n: int, generator: torch.Generator) -> list[int]:
         """Up to n distinct random images whose true classes include ``label``."""

@@ -44,6 +44,12 @@ class InstanceList:
         column = self.column(feature)  # may widen the array: look it up first
         self._values[self._row[image], column] = value
 
+    def set_block(self, images: list, features: list, values: np.ndarray) -> None:
+        """Set the values (len(features), len(images)) of several features on several images at once."""
+        columns = [self.column(f) for f in features]  # may widen the array: look them up first
+        rows = [self._row[i] for i in images]
+        self._values[np.ix_(rows, columns)] = np.asarray(values, dtype=float).T
+
     def get(self, image: Hashable, feature: Hashable) -> float:
         """Value of ``feature`` on ``image``, NaN if not measured (or unknown)."""
         row, column = self._row.get(image), self._column.get(feature)

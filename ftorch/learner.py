@@ -47,25 +47,33 @@ class DistinctiveFeatureLearner:
 
     # -- measurement -------------------------------------------------------------------------
     def _measure(self, env: ImageSet, features, images) -> None:
-        """Make sure the instance list holds every (feature, image) value, computing missing ones in one batch."""
+        """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
         for image in images:
             self.instances.add(image, env.labels[image])
-        missing = [f for f in dict.fromkeys(features) if any(np.isnan(self.instances.get(i, f)) for i in images)]
-        if missing:
-            values = env.values(missing, list(images))
-            for j, f in enumerate(missing):
-                for k, image in enumerate(images):
-                    self.instances.set(image, f, float(values[j, k]))
+        features = list(dict.fromkeys(features))
+        if features:
+            self.instances.set_block(list(images), features, env.values(features, list(images)))
 
-    def _value(self, env: ImageSet, image: int, feature) -> float:
-        self._measure(env, [feature], [image])
-        return self.instances.get(image, feature)
+    def _record(self, image: int, rec: Recognition) -> None:
+        """The values a training recognition measured join the instance list."""
+        if rec.queried:
+            self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
 
     # -- recognition (alg. 4.4) --------------------------------------------------------------
     def recognize(self, env: ImageSet, image: int) -> Recognition:
-        """Recognize one image of ``env``; the measured values join the instance list."""
-        self.instances.add(image, env.labels[image])
-        return recognize(self.networks, lambda f: self._value(env, image, f))
+        """Recognize one image of ``env`` (alg. 4.4); nothing is learned or recorded."""
+        return self.recognize_many(env, [image])[0]
+
+    def recognize_many(self, env: ImageSet, images) -> list[Recognition]:
+        """Recognize several images: every feature of every network is measured on all of them in one batch."""
+        images = list(images)
+        features = self._in_use()
+        table = env.values(features, images) if features else np.zeros((0, len(images)))
+        out = []
+        for k in range(len(images)):
+            column = dict(zip(features, table[:, k].tolist()))
+            out.append(recognize(self.networks, column.__getitem__))
+        return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
     def _discretize(self, label, feature) -> tuple[float, float]:
@@ -96,26 +104,50 @@ class DistinctiveFeatureLearner:
     # -- learning (alg. 4.7) -----------------------------------------------------------------
     def learn(self, env: ImageSet, image: int) -> tuple[Recognition, str]:
         """Present one training image. Returns its first recognition and what happened:
-        'correct', 'reestimated' (fixed by re-counting), 'learned' (a new feature) or 'failed'."""
+        'correct', 'reestimated' (fixed by re-counting), 'learned' (a new feature) or 'failed'.
+
+        One learner learns from one :class:`ImageSet`: its image indices are the instance ids.
+        """
         self.presentations += 1
         true = env.labels[image]
         for label in true:
             if label not in self.networks:
                 self.networks[label] = ClassNetwork(label)
         self.instances.add(image, true)
-        first = self.recognize(env, image)
-        self._mark_usage(first)
+        first = self._training_recognition(env, image)
         if outcome(first.recognized, true) == "correct":
             return first, "correct"
         self.reestimate()
-        again = self.recognize(env, image)
+        again = self._training_recognition(env, image)
         if outcome(again.recognized, true) == "correct":
             return first, "reestimated"
         return first, "learned" if self._learn_feature(env, image, again) else "failed"
 
-    def _mark_usage(self, rec: Recognition) -> None:
-        for f in rec.queried:
+    def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
+        rec = self.recognize(env, image)
+        self._record(image, rec)
+        self._mark_usage(rec.queried)
+        return rec
+
+    def _mark_usage(self, features) -> None:
+        for f in features:
             self.usage[f] = self.presentations
+
+    def discard_unused(self, since: int) -> list:
+        """Remove every feature not queried in a training recognition since presentation ``since``
+        (alg. 5.3 step 4); returns them. The networks are re-counted."""
+        unused = [f for f in self._in_use() if self.usage.get(f, -1) < since]
+        for f in unused:
+            for label, net in self.networks.items():
+                if f in net:
+                    net.remove_feature(f)
+                    self.discriminates.pop((label, f), None)
+            self.usage.pop(f, None)
+            self.instances.forget(f)
+        if unused:
+            for label in self.networks:
+                self._estimate(label)
+        return unused
 
     def _pick(self, items: list):
         return items[int(torch.randint(len(items), (1,), generator=self.generator))]
@@ -162,16 +194,18 @@ class DistinctiveFeatureLearner:
             record = env.record(sample)
             made = [random_texel(record, 0, self.generator) if torch.rand(1, generator=self.generator) < 0.5
                     else random_edgel_pair(record, 0, self.generator) for _ in range(n)]
-            self.sampled += n
-            return [f for f in made if f is not None]
+            made = [f for f in made if f is not None]
+            self.sampled += len(made)
+            return made
         pool = self._in_use() + failed
         if method == 3:  # geometric expansion at the strongest occurrence
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
             made = [expand_geometric(self._pick(local), env.record(sample), 0, self.generator) for _ in range(n)]
-            self.sampled += n
-            return [f for f in made if f is not None]
+            made = [f for f in made if f is not None]
+            self.sampled += len(made)
+            return made
         if len(pool) < 2:
             return []
         kind = Conjunction if method == 4 else Disjunction
@@ -213,8 +247,9 @@ class DistinctiveFeatureLearner:
                 net.add_feature(candidate, parents, children, threshold=cut)
                 self._estimate(char)
                 after = self.recognize(env, image)
+                self._record(image, after)
                 if (char in after.recognized) == char_is_true:
-                    self._mark_usage(after)
+                    self._mark_usage([*after.queried, candidate])
                     return True
                 net.remove_feature(candidate)
                 del self.discriminates[(char, candidate)]

@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .bayes import ClassNetwork
 
 def outcome(recognized: Iterable[Hashable], true: Iterable[Hashable]) -> str:
@@ -50,31 +52,44 @@ class Recognition:
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
               tolerance: float = 1e-12) -> Recognition:
-    """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14)."""
-    evidence = {label: {} for label in networks}
-    belief = {label: net.posterior({}) for label, net in networks.items()}
-    informative = {label: net.informations({}) for label, net in networks.items()}  # only changed nets are redone
-    beliefs = [dict(belief)]
+    """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14).
+
+    Features are indexed once; each network keeps its evidence as a state array and only the
+    networks that hold the queried feature recompute their informations.
+    """
+    labels, nets = list(networks), list(networks.values())
+    keys = list(dict.fromkeys(k for net in nets for k in net.features))
+    index = {k: i for i, k in enumerate(keys)}
+    where = [np.array([index[k] for k in net.features], dtype=np.int64) for net in nets]
+    local = [dict(zip(net.features, range(len(net.features)))) for net in nets]
+    holders = [[n for n, net in enumerate(nets) if key in local[n]] for key in keys]
+    states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
+    evaluated = [net.evaluate(state) for net, state in zip(nets, states)]
+    belief, informative = [e[0] for e in evaluated], [e[1] for e in evaluated]
+    beliefs = [dict(zip(labels, belief))]
+    asked = np.zeros(len(keys), dtype=bool)
     queried, values = [], {}
     while True:
-        best, best_info = None, tolerance
-        for label, net in networks.items():
-            for key in net.features:
-                info = informative[label].get(key, 0.0)
-                if info > best_info and key not in values:
-                    best, best_info = key, info
-        if best is None:
+        best, best_info = -1, tolerance
+        for n in range(len(nets)):
+            if len(where[n]):
+                info = np.where(asked[where[n]], 0.0, informative[n])
+                j = int(info.argmax())
+                if info[j] > best_info:
+                    best, best_info = int(where[n][j]), float(info[j])
+        if best < 0:
             break
-        value = float(measure(best))
-        values[best] = value
-        queried.append(best)
-        for label, net in networks.items():
-            if best in net:
-                trial = {**evidence[label], best: int(value > net.threshold[best])}
-                posterior = net.posterior(trial)
-                if posterior == posterior:  # not NaN: the evidence is possible
-                    evidence[label], belief[label] = trial, posterior
-                    informative[label] = net.informations(trial)
-        beliefs.append(dict(belief))
+        key = keys[best]
+        asked[best] = True
+        value = float(measure(key))
+        values[key] = value
+        queried.append(key)
+        for n in holders[best]:
+            trial = states[n].copy()
+            trial[local[n][key]] = int(value > nets[n].threshold[key])
+            posterior, info = nets[n].evaluate(trial)
+            if posterior == posterior:  # not NaN: the evidence is possible
+                states[n], belief[n], informative[n] = trial, posterior, info
+        beliefs.append(dict(zip(labels, belief)))
     posteriors = beliefs[-1]
     return Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)

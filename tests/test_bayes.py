@@ -40,8 +40,16 @@ def pgmpy_query(net: ClassNetwork, variables, evidence):
     return np.transpose(result.values, order)
 
 
+def information_from(joint: np.ndarray) -> float:
+    """Mutual information in bits of a (2, 2) joint table, written out independently."""
+    pc, pf = joint.sum(1), joint.sum(0)
+    return sum(joint[c, f] * np.log2(joint[c, f] / (pc[c] * pf[f])) for c in range(2) for f in range(2) if joint[c, f] > 0)
+
+
+@pytest.mark.parametrize("table_limit", [14, 0], ids=["tables", "einsum"])
 @pytest.mark.parametrize("seed", range(8))
-def test_fast_inference_equals_pgmpy_variable_elimination(seed):
+def test_fast_inference_equals_pgmpy_variable_elimination(seed, table_limit, monkeypatch):
+    monkeypatch.setattr(ClassNetwork, "TABLE_LIMIT", table_limit)
     rng = np.random.default_rng(seed)
     net = random_network(rng, n_features=int(rng.integers(3, 9)))
     assert net.to_pgmpy().check_model()
@@ -49,9 +57,39 @@ def test_fast_inference_equals_pgmpy_variable_elimination(seed):
         observed = [k for k in net.features if rng.random() < 0.5]
         evidence = {k: int(rng.integers(0, 2)) for k in observed}
         np.testing.assert_allclose(net.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
+        assert net.posterior(evidence) == pytest.approx(pgmpy_query(net, [CLASS], evidence)[1], abs=1e-9)
+        informations = net.informations(evidence)
         for query in (k for k in net.features if k not in evidence):
-            np.testing.assert_allclose(net.joint(evidence, query), pgmpy_query(net, [CLASS, query], evidence),
-                                       rtol=0, atol=1e-9)
+            expected = pgmpy_query(net, [CLASS, query], evidence)
+            np.testing.assert_allclose(net.joint(evidence, query), expected, rtol=0, atol=1e-9)
+            assert informations[query] == pytest.approx(information_from(expected), abs=1e-9)
+
+
+def test_large_linked_groups_take_einsum_and_equal_pgmpy():
+    """A chain of 17 compound arcs is one group beyond TABLE_LIMIT: variable elimination by einsum."""
+    rng = np.random.default_rng(7)
+    net = ClassNetwork("chain")
+    for i in range(17):
+        net.add_feature(i, parents=[i - 1] if i else [])
+        p = rng.uniform(0.05, 0.95, size=net.cpt[i].shape[:-1])
+        net.cpt[i] = np.stack([1 - p, p], axis=-1)
+    assert len(net.features) > ClassNetwork.TABLE_LIMIT and net.compiled().groups[0].table is None
+    evidence = {0: 1, 5: 0, 16: 1}
+    np.testing.assert_allclose(net.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
+    informations = net.informations(evidence)
+    for query in (3, 10):
+        assert informations[query] == pytest.approx(information_from(pgmpy_query(net, [CLASS, query], evidence)), abs=1e-9)
+
+
+def test_assigning_a_cpt_or_prior_takes_effect():
+    net = ClassNetwork("c")
+    net.add_feature("a")
+    net.add_feature("b", parents=["a"])
+    before = net.posterior({"b": 1})
+    net.cpt["b"] = np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]])
+    assert net.posterior({"b": 1}) == pytest.approx(0.9) and before == pytest.approx(0.5)
+    net.prior = np.array([0.75, 0.25])
+    assert net.posterior({}) == pytest.approx(0.25)
 
 
 def test_mutual_information_vanishes_for_observed_or_certain_classes():
