@@ -1,6 +1,9 @@
 """Pictures of salient points and features in the style of figures 3.9 and 3.11.
 
 Images are drawn enlarged (OpenCV, anti-aliased) and returned as RGB uint8 arrays.
+Learned features are drawn as in figures 4.7 and 4.8: each primitive where the feature is
+strongest (eq. 3.14), the parts of a geometric compound joined by solid lines, the two
+sub-features of a Boolean compound by a dotted line, and an id beside the reference point.
 Edgels are segments of length 2*sigma along the edge (across the gradient) centred on the
 point; blobs are circles and corners squares of radius sigma, each with a line from the
 centre along its orientation.
@@ -11,10 +14,14 @@ import math
 
 import cv2
 import numpy as np
+import torch
 from torch import Tensor
 
+from .evaluate import feature_values
+from .features import Feature, LocalFeature
 from .record import ImageRecords
 from .salient import BLOB, CORNER, EDGEL
+from .sampling import advance
 
 EDGEL_COLOUR = (220, 40, 40)
 BLOB_COLOUR = (40, 200, 60)
@@ -80,3 +87,86 @@ def save_rgb(path, picture: np.ndarray) -> None:
     if not cv2.imwrite(str(path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR)):
         raise OSError(f"could not write {path}")
 
+
+PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 200, 200),
+           (240, 50, 230), (128, 128, 0), (0, 0, 128), (170, 110, 40), (128, 0, 0), (0, 128, 128)]
+
+
+def _subfeatures(feature: Feature, out: dict) -> None:
+    out.setdefault(feature, len(out))
+    if not isinstance(feature, LocalFeature):
+        _subfeatures(feature.a, out)
+        _subfeatures(feature.b, out)
+
+
+def _dotted(canvas, a, b, colour, step: float = 4.0) -> None:
+    length = math.hypot(b[0] - a[0], b[1] - a[1])
+    pieces = max(1, int(length / step))
+    for i in range(0, pieces, 2):
+        t0, t1 = i / pieces, min(1.0, (i + 1) / pieces)
+        _line(canvas, (a[0] + t0 * (b[0] - a[0]), a[1] + t0 * (b[1] - a[1])),
+              (a[0] + t1 * (b[0] - a[0]), a[1] + t1 * (b[1] - a[1])), colour)
+
+
+def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) -> tuple[float, float] | None:
+    """Draw one feature at its located reference point; returns that point (canvas coordinates)."""
+    x, y, sigma, theta = where[feature]
+    if not math.isfinite(x):
+        return None
+    if isinstance(feature, LocalFeature):
+        state = tuple(torch.tensor(v, dtype=torch.float64) for v in (x, y, sigma, theta))
+        previous = None
+        for i, part in enumerate(feature.parts):
+            if i:
+                state = advance(*state, part.phi, part.dtheta, part.d, part.dsigma)
+            px, py, ps, pt = (float(v) for v in state)
+            draw_marker(canvas, EDGEL if part.kind == "edgel" else BLOB, px, py, ps, pt, zoom, colour, 2)
+            here = _centre(px, py, zoom)
+            if previous is not None:
+                _line(canvas, previous, here, colour, 1)
+            previous = here
+        return _centre(x, y, zoom)
+    a = _draw_located(canvas, feature.a, where, zoom, colour)
+    b = _draw_located(canvas, feature.b, where, zoom, colour)
+    if a is not None and b is not None:
+        _dotted(canvas, a, b, colour)
+    return a or b
+
+
+def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_side: int = 256) -> np.ndarray:
+    """Figures 4.7/4.8: ``features`` located in image n and drawn with their ``ids``, RGB uint8."""
+    canvas, zoom = _canvas(records, n, image, min_side)
+    features = list(features)
+    every: dict = {}
+    for f in features:
+        _subfeatures(f, every)
+    where = {}
+    if every:
+        found = feature_values(list(every), records[n])
+        for f, j in every.items():
+            where[f] = tuple(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta))
+    for k, f in enumerate(features):
+        colour = PALETTE[k % len(PALETTE)]
+        point = _draw_located(canvas, f, where, zoom, colour)
+        if point is not None and ids is not None:
+            cv2.putText(canvas, str(ids[k]), (int(point[0]) + 4, int(point[1]) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                        colour, 1, cv2.LINE_AA)
+    return canvas
+
+
+def titled(picture: np.ndarray, title: str) -> np.ndarray:
+    """A white strip with ``title`` above an RGB picture."""
+    strip = np.full((22, picture.shape[1], 3), 255, np.uint8)
+    cv2.putText(strip, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([strip, picture], axis=0)
+
+
+def grid(pictures: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
+    """Equal-sized RGB pictures in a grid of ``columns`` on white."""
+    height, width = max(p.shape[0] for p in pictures), max(p.shape[1] for p in pictures)
+    rows = math.ceil(len(pictures) / columns)
+    out = np.full((rows * (height + gap) - gap, columns * (width + gap) - gap, 3), 255, np.uint8)
+    for i, p in enumerate(pictures):
+        r, c = divmod(i, columns)
+        out[r * (height + gap): r * (height + gap) + p.shape[0], c * (width + gap): c * (width + gap) + p.shape[1]] = p
+    return out

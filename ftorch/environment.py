@@ -7,14 +7,13 @@ resumable bit for bit: the cache is part of a run's state (:meth:`ImageSet.cache
 """
 from __future__ import annotations
 
-import base64
-import zlib
 from collections.abc import Hashable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .checkpoint import decode_array, encode_array
 from .errors import InputError
 from .evaluate import feature_values
 from .features import Feature
@@ -95,24 +94,21 @@ class ImageSet:
         return feature_values(features, records).values.double().cpu().numpy()
 
     def cache_state(self) -> dict:
-        """The value cache as JSON-ready data: feature descriptions and the zlib-compressed float64 table."""
+        """The value cache as JSON-ready data: feature descriptions and the exact table."""
         features = sorted(self._row, key=self._row.__getitem__)
-        table = np.ascontiguousarray(self._cache[: len(features)], dtype="<f8")
-        return {"features": [f.to_dict() for f in features], "shape": list(table.shape),
-                "values": base64.b64encode(zlib.compress(table.tobytes(), 6)).decode("ascii")}
+        return {"features": [f.to_dict() for f in features], "values": encode_array(self._cache[: len(features)])}
 
     def load_cache_state(self, state: dict) -> None:
         """Restore a cache written by :meth:`cache_state` for this same image set."""
         try:
             features = [Feature.from_dict(d) for d in state["features"]]
-            shape = tuple(int(v) for v in state["shape"])
-            table = np.frombuffer(zlib.decompress(base64.b64decode(state["values"])), dtype="<f8")
-        except (KeyError, TypeError, ValueError, zlib.error) as err:
+            table = decode_array(state["values"])
+        except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"value cache is damaged: {err}") from None
-        if shape != (len(features), len(self)) or table.size != shape[0] * shape[1]:
-            raise InputError(f"value cache holds {shape}, expected ({len(features)}, {len(self)}) for this image set")
+        if table.shape != (len(features), len(self)):
+            raise InputError(f"value cache holds {table.shape}, expected ({len(features)}, {len(self)}) for this image set")
         self._row = {f: i for i, f in enumerate(features)}
-        self._cache = table.reshape(shape).copy()
+        self._cache = table
 
     def examples(self, label: Hashable, n: int, generator: torch.Generator) -> list[int]:
         """Up to n distinct random images whose true classes include ``label``."""

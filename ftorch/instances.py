@@ -60,6 +60,10 @@ class InstanceList:
         column = self._column.get(feature)
         return np.full(len(self), np.nan) if column is None else self._values[:, column].copy()
 
+    def values_table(self) -> np.ndarray:
+        """All values (instances, features), NaN where not measured."""
+        return self._values.copy()
+
     def has(self, label: Hashable) -> np.ndarray:
         """(n,) bool: instances whose true classes include ``label``."""
         return np.array([label in labels for labels in self.labels], dtype=bool)

@@ -24,16 +24,33 @@ import numpy as np
 import torch
 
 from .bayes import ClassNetwork, compound_arcs
+from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
 from .environment import ImageSet
-from .features import Conjunction, Disjunction, LocalFeature
+from .errors import InputError
+from .features import Conjunction, Disjunction, Feature, LocalFeature
 from .generate import expand_geometric, random_edgel_pair, random_texel
 from .instances import InstanceList
 from .ksd import ksd
 from .recognition import Recognition, outcome, recognize
 
 
+KIND = "learner"
+
+
+def _label(value):
+    """Class labels and image ids are stored as JSON scalars: str or int."""
+    if isinstance(value, bool) or not isinstance(value, (str, int)):
+        raise InputError(f"class labels and image ids must be str or int to be saved, got {value!r}")
+    return value
+
+
 class DistinctiveFeatureLearner:
-    """Learns class networks of distinctive features from labelled images, one at a time."""
+    """Learns class networks of distinctive features from labelled images, one at a time.
+
+    ``learn(env, i)`` presents image i of an :class:`ImageSet` with its true classes;
+    ``recognize``/``recognize_many`` recognize images of any image set; ``save``/``load``
+    write and read the whole state (networks, instance list, usage, random state) exactly.
+    """
 
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0):
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
@@ -256,3 +273,78 @@ class DistinctiveFeatureLearner:
                 self._estimate(char)
                 failed.append(candidate)
         return False
+
+    # -- state ---------------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """The complete learner state as JSON-ready data (features stored once, referred to by index)."""
+        features = list(dict.fromkeys([*self._in_use(), *self.instances.features, *self.usage,
+                                       *(f for _, f in self.discriminates)]))
+        index = {f: i for i, f in enumerate(features)}
+        networks = [{
+            "label": _label(label), "features": [index[f] for f in net.features],
+            "parents": [[index[p] for p in net.parents[f]] for f in net.features],
+            "threshold": [net.threshold[f] for f in net.features],
+            "prior": net.prior.tolist(), "cpt": [encode_array(net.cpt[f]) for f in net.features],
+        } for label, net in self.networks.items()]
+        instances = self.instances
+        return {
+            "n_ex": self.n_ex, "n_fgen": self.n_fgen, "presentations": self.presentations, "sampled": self.sampled,
+            "generator": encode_array(self.generator.get_state().numpy().astype(np.float64)),
+            "features": [f.to_dict() for f in features], "networks": networks,
+            "discriminates": [[_label(c), index[f], sorted(map(_label, d), key=str)] for (c, f), d in self.discriminates.items()],
+            "usage": [[index[f], n] for f, n in self.usage.items()],
+            "instances": {"images": [_label(i) for i in instances.images],
+                          "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
+                          "features": [index[f] for f in instances.features],
+                          "values": encode_array(instances.values_table())},
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a state written by :meth:`state_dict`; ValueError or InputError where it is damaged."""
+        features = [Feature.from_dict(d) for d in state["features"]]
+        self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
+        self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
+        generator_state = decode_array(state["generator"]).astype(np.uint8)
+        self.generator = torch.Generator()
+        self.generator.set_state(torch.from_numpy(generator_state))
+        self.networks = {}
+        for record in state["networks"]:
+            net = ClassNetwork(record["label"])
+            keys = [features[i] for i in record["features"]]
+            net.features = keys
+            net.parents = {k: [features[p] for p in ps] for k, ps in zip(keys, record["parents"])}
+            net.threshold = {k: float(t) for k, t in zip(keys, record["threshold"])}
+            net.prior = np.array(record["prior"], dtype=float)
+            for k, table in zip(keys, record["cpt"]):
+                table = decode_array(table)
+                if table.shape != (2,) * (len(net.parents[k]) + 2):
+                    raise ValueError(f"CPT of shape {table.shape} for a node with {len(net.parents[k])} feature parents")
+                net.cpt[k] = table
+            self.networks[net.label] = net
+        self.discriminates = {(c, features[f]): frozenset(d) for c, f, d in state["discriminates"]}
+        self.usage = {features[f]: int(n) for f, n in state["usage"]}
+        block = state["instances"]
+        self.instances = InstanceList()
+        for image, labels in zip(block["images"], block["labels"]):
+            self.instances.add(image, labels)
+        columns = [features[i] for i in block["features"]]
+        values = decode_array(block["values"])
+        if values.shape != (len(self.instances), len(columns)):
+            raise ValueError(f"instance values of shape {values.shape} for {len(self.instances)} images and {len(columns)} features")
+        if columns:
+            self.instances.set_block(self.instances.images, columns, values.T)
+
+    def save(self, path) -> None:
+        """Write the learner to ``path`` (JSON, atomically)."""
+        save_checkpoint(path, KIND, {"learner": self.state_dict()})
+
+    @classmethod
+    def load(cls, path) -> "DistinctiveFeatureLearner":
+        """Read a learner written by :meth:`save`; one clear InputError for a damaged or foreign file."""
+        data = load_checkpoint(path, KIND)
+        learner = cls()
+        try:
+            learner.load_state_dict(data["learner"])
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
+            raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
+        return learner

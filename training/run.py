@@ -1,25 +1,36 @@
 """Command line: ``python -m training.run [COMMAND ...]``.
 
 Commands:
+  recognize --task coil|folder|plym ...   the recognition protocol of 4.5 (two-fold cross
+                               validation, stage 0): report.json, report.md, feature figures,
+                               TensorBoard logs and a resumable checkpoint per fold.
+  evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
                                Without images it uses the built-in scene.
-With no command at all it runs ``salient`` on the built-in scene into runs/salient.
+With no command at all it runs ``recognize`` on the built-in Plym-like task into runs/plym.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ftorch import FeatureSpace, load_image
-from ftorch.draw import draw_salient, save_rgb
+from ftorch.draw import draw_features, draw_salient, grid, save_rgb, titled
+from ftorch.environment import ImageSet
 from ftorch.errors import InputError
+from ftorch.learner import DistinctiveFeatureLearner
 from training.builtin import builtin_scene
+from training.datasets import Task, load_task
 from training.devices import resolve_device
+from training.protocol import Fold, confusion, feature_block, test_block
+from training.report import ambiguity_table, build_report, confusion_table, write_json, write_markdown
 
 
 def salient(args) -> int:
@@ -50,9 +61,143 @@ def salient(args) -> int:
     return 0
 
 
+def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool) -> ImageSet:
+    return ImageSet([task.images[i] for i in indices], [{task.labels[i]} for i in indices], space,
+                    names=[task.names[i] for i in indices], progress=progress)
+
+
+def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: Path) -> list[Path]:
+    """Figure 4.7 (each class's features present in its middle training view) and figure 4.8
+    (the first class's features in every training view of it where they are present)."""
+    figures, panels = [], []
+
+    def present(label, image: int) -> tuple[list, list[int]]:
+        net = learner.networks[label]
+        values = env.values(net.features, [image])[:, 0] if net.features else np.zeros(0)
+        keep = [k for k, f in enumerate(net.features) if values[k] > net.threshold[f]]
+        return [net.features[k] for k in keep], [k + 1 for k in keep]
+
+    classes = sorted(learner.networks, key=str)
+    for label in classes:
+        views = [i for i, labels in enumerate(env.labels) if label in labels]
+        if views:
+            middle = views[len(views) // 2]
+            features, ids = present(label, middle)
+            panels.append(titled(draw_features(env.all_records, middle, env.images[middle], features, ids),
+                                 f"{label}: {len(features)} of {len(learner.networks[label].features)}"))
+    if panels:
+        figures.append(folder / "features.png")
+        save_rgb(figures[-1], grid(panels, min(4, len(panels))))
+    if classes:
+        first = classes[0]
+        views = [i for i, labels in enumerate(env.labels) if first in labels]
+        pictures = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in views]
+        figures.append(folder / f"{first}_features.png")
+        save_rgb(figures[-1], grid(pictures, min(5, len(pictures))))
+    return figures
+
+
+def recognize_command(args) -> int:
+    device = resolve_device(args.device)
+    if args.stages != 0:
+        raise InputError(f"--stages {args.stages}: this version runs stage 0 (chapter 4); expert stages come with chapter 5")
+    if args.folds not in (1, 2):
+        raise InputError(f"--folds {args.folds}: expected 1 or 2")
+    if args.max_cycles < 1:
+        raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
+    start = time.perf_counter()
+    torch.manual_seed(args.seed)
+    task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed)
+    out = Path(args.out or f"runs/{task.name}")
+    logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
+    config = {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
+              "classes": task.classes(), "views": args.views, "size": args.size, "seed": args.seed,
+              "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(device)}
+    space = FeatureSpace().to(device)
+    progress = not args.quiet
+    folds, figures = [], []
+    from torch.utils.tensorboard import SummaryWriter
+
+    for k in range(1, args.folds + 1):
+        train, test = task.fold(k)
+        with SummaryWriter(str(logdir / f"fold{k}")) as writer:
+            fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
+                        out / f"fold{k}", task.classes(), progress, writer)
+            entry, learner = fold.run(args.max_cycles, resume=args.resume)
+        folds.append(entry)
+        figures += [str(p.relative_to(out)) for p in feature_figures(learner, fold.train, fold.folder)]
+        stage = entry["stages"][-1]
+        print(f"fold {k}: accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
+              f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
+    seconds = time.perf_counter() - start
+    report = build_report(config, str(device), seconds, folds)
+    write_json(out / "report.json", report)
+    write_markdown(out / "report.md", report, figures)
+    avg = report["average"]["final"]
+    print(f"average: accuracy {avg['test']['accuracy']:.2f}, correct {avg['test']['correct']:.2f}, "
+          f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
+    print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
+    return 0
+
+
+def evaluate_command(args) -> int:
+    device = resolve_device(args.device)
+    learner = DistinctiveFeatureLearner.load(args.checkpoint)
+    task = load_task(args.task, args.data, args.classes, args.views)
+    known = [str(c) for c in learner.networks]
+    unknown = sorted(set(task.labels) - set(known))
+    if unknown:
+        print(f"note: classes {', '.join(unknown)} of {args.data} are unknown to the learner", file=sys.stderr)
+    classes = sorted(set(known) | set(task.labels), key=str)
+    env = _image_set(task, list(range(len(task.images))), FeatureSpace().to(device), not args.quiet)
+    recognitions = learner.recognize_many(env, range(len(env)))
+    result = {"checkpoint": str(args.checkpoint), "data": str(args.data), "classes": classes,
+              "test": test_block(recognitions, env.labels, classes), "features": feature_block(learner, recognitions),
+              "confusion": confusion(recognitions, env.labels, classes, learner.networks),
+              "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
+                         for name, t, r in zip(env.names, env.labels, recognitions)]}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "evaluate.json", result)
+    lines = [f"# Evaluation of {args.checkpoint} on {args.data}", "",
+             f"accuracy {result['test']['accuracy']:.2f}; " + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
+             "", *confusion_table(result["confusion"], classes), "", *ambiguity_table(result["confusion"], classes), ""]
+    (out / "evaluate.md").write_text("\n".join(lines))
+    print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, correct {result['test']['correct']:.2f}; "
+          f"report: {out / 'evaluate.md'}")
+    return 0
+
+
+def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
+    p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
+    p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
+    p.add_argument("--classes", type=int, default=6, help="COIL objects 1..N (default 6)")
+    p.add_argument("--views", type=int, default=20, help="consecutive COIL views per object (default 20)")
+    p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command")
+    p = commands.add_parser("recognize", help="recognition protocol of 4.5 (two folds, stage 0)")
+    _task_options(p, ("plym", "coil", "folder"), "plym")
+    p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
+    p.add_argument("--stages", type=int, default=0, help="expert stages (0: chapter 4 learning only)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--size", type=int, default=64, help="Plym image side in pixels (default 64)")
+    p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
+    p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
+    p.add_argument("--max-cycles", type=int, default=50, help="give up a fold after this many cycles (default 50)")
+    p.add_argument("--out", help="run folder (default runs/TASK)")
+    p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
+    p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
+    p.set_defaults(run=recognize_command)
+    p = commands.add_parser("evaluate", help="recognize another image set with a saved learner")
+    p.add_argument("--checkpoint", required=True, help="a learner.json written by recognize")
+    _task_options(p, ("coil", "folder"), "coil")
+    p.add_argument("--out", default="runs/evaluate", help="output folder (default runs/evaluate)")
+    p.set_defaults(run=evaluate_command)
     p = commands.add_parser("salient", help="draw salient edgels and texels (figure 3.9)")
     p.add_argument("images", nargs="*", help="image files (default: the built-in scene)")
     p.add_argument("--out", default="runs/salient", help="output folder (default: runs/salient)")
@@ -64,7 +209,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    args = parser().parse_args(argv or ["salient"])
+    args = parser().parse_args(argv or ["recognize"])
     try:
         return args.run(args)
     except InputError as err:

@@ -1,0 +1,108 @@
+"""Data sets for the recognition protocols of 4.5: COIL folders, class folders, and the built-in Plym task.
+
+Each loader returns a :class:`Task`: images (paths or tensors), one class label per image,
+display names, and each image's position in its class's ordered sequence of views. Folds
+assign neighbouring views alternately (4.5): fold 1 trains on positions 0, 2, 4, ... and tests
+on 1, 3, 5, ...; fold 2 swaps the roles.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from ftorch.errors import InputError
+
+from .plym import plym_images
+
+IMAGE_SUFFIXES = {".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
+COIL_NAME = re.compile(r"^obj(\d+)__(\d+)\.png$", re.IGNORECASE)
+
+
+@dataclass
+class Task:
+    name: str
+    images: list
+    labels: list[str]
+    names: list[str]
+    positions: list[int]
+
+    def classes(self) -> list[str]:
+        return list(dict.fromkeys(self.labels))
+
+    def fold(self, fold: int) -> tuple[list[int], list[int]]:
+        """(training, test) image indices of fold 1 or 2."""
+        if fold not in (1, 2):
+            raise InputError(f"fold must be 1 or 2, got {fold}")
+        train = [i for i, p in enumerate(self.positions) if p % 2 == fold - 1]
+        return train, [i for i in range(len(self.images)) if i not in set(train)]
+
+
+def _folder(root) -> Path:
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"--data {root}: no such folder")
+    return root
+
+
+def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0) -> Task:
+    """COIL objects 1..``classes``, ``views`` consecutive views from ``first_view`` (5 degrees apart).
+
+    Files are found anywhere below ``root`` by their original names ``obj{k}__{view}.png``
+    (any image size), so both a flat folder and the original COIL layout work.
+    """
+    root = _folder(root)
+    if classes < 2 or views < 2:
+        raise InputError(f"the COIL task needs at least 2 classes and 2 views, got {classes} and {views}")
+    found = {}
+    for path in root.rglob("*.png"):
+        match = COIL_NAME.match(path.name)
+        if match:
+            found.setdefault((int(match[1]), int(match[2])), path)
+    images, labels, names, positions = [], [], [], []
+    for k in range(1, classes + 1):
+        for j in range(views):
+            view = first_view + j
+            if (k, view) not in found:
+                raise InputError(f"--data {root}: COIL image obj{k}__{view}.png not found "
+                                 f"({len(found)} COIL images there; need objects 1-{classes}, views {first_view}-{first_view + views - 1})")
+            images.append(found[(k, view)])
+            labels.append(f"obj{k}")
+            names.append(f"obj{k}__{view}")
+            positions.append(j)
+    return Task("coil", images, labels, names, positions)
+
+
+def folder_task(root) -> Task:
+    """``root/<class>/<image>``: every class folder holds that class's views, in file-name order."""
+    root = _folder(root)
+    images, labels, names, positions = [], [], [], []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        for j, path in enumerate(files):
+            images.append(path)
+            labels.append(folder.name)
+            names.append(f"{folder.name}/{path.name}")
+            positions.append(j)
+    if len(set(labels)) < 2:
+        raise InputError(f"--data {root}: expected at least two class folders with images (root/<class>/<image>)")
+    return Task("folder", images, labels, names, positions)
+
+
+def plym_task(size: int = 64, seed: int = 0) -> Task:
+    """The built-in Plym-like task: 8 rendered solids x 15 views (no files needed)."""
+    images, labels, names, positions = plym_images(size, seed)
+    return Task("plym", images, labels, names, positions)
+
+
+def load_task(name: str, data=None, classes: int = 6, views: int = 20, size: int = 64, seed: int = 0) -> Task:
+    """The task named on the command line."""
+    if name == "plym":
+        return plym_task(size, seed)
+    if data is None:
+        raise InputError(f"--task {name} needs --data DIR")
+    if name == "coil":
+        return coil_task(data, classes, views)
+    if name == "folder":
+        return folder_task(data)
+    raise InputError(f"--task {name!r}: expected coil, folder or plym")
