@@ -92,3 +92,62 @@ def test_instance_list_counts_only_measured_values():
     assert instances.has("A").tolist() == [True, False] and instances.has_any({"A", "B"}).tolist() == [True, True]
     instances.forget("f")
     assert instances.features == [] and np.isnan(instances.get("i1", "f"))
+
+
+def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
+    learner, _ = train(shapes, seed=1, cycles=2)
+    before = (len(learner.instances), learner.instances.values_table().copy(), learner.presentations)
+    other = ImageSet([shapes.images[j] for j in range(18, 30)], [shapes.labels[j] for j in range(18, 30)])
+    many = learner.recognize_many(other, range(12))
+    one = [learner.recognize(other, j) for j in range(12)]
+    assert [(r.recognized, r.queried, r.posteriors) for r in many] == [(r.recognized, r.queried, r.posteriors) for r in one]
+    after = learner.instances.values_table()
+    assert len(learner.instances) == before[0] and learner.presentations == before[2]
+    np.testing.assert_array_equal(np.isnan(after), np.isnan(before[1]))
+
+
+def test_each_value_is_computed_once(shapes, monkeypatch):
+    env = ImageSet(shapes.images[:6], shapes.labels[:6])
+    learner, _ = train(shapes, seed=2, cycles=1)
+    features = learner._in_use()[:5]
+    calls = []
+    original = ImageSet._compute
+    monkeypatch.setattr(ImageSet, "_compute", lambda self, f, i: calls.append((len(f), len(i))) or original(self, f, i))
+    first = env.values(features, [0, 1, 2])
+    again = env.values(features[::-1], [2, 0])
+    assert calls == [(5, 3)]
+    np.testing.assert_array_equal(again, first[::-1][:, [2, 0]])
+    env.values(features, [0, 3])  # only image 3 is missing: computed, image 0 kept as it was
+    assert calls[-1] == (5, 2) and np.array_equal(env.values(features, [0])[:, 0], first[:, 0])
+    fresh = ImageSet(shapes.images[:6], shapes.labels[:6])
+    fresh.load_cache_state(env.cache_state())
+    np.testing.assert_array_equal(fresh.values(features, [0, 1, 2, 3]), env.values(features, [0, 1, 2, 3]))
+    assert len(calls) == 2
+
+
+def test_discard_unused_removes_features_and_recounts(shapes):
+    learner, _ = train(shapes, seed=0, cycles=2)
+    assert learner.discard_unused(since=0) == []  # every feature was used at some presentation
+    last = learner.presentations
+    for i in range(3):
+        learner.learn(shapes, i)
+    in_use = learner._in_use()
+    kept = [f for f in in_use if learner.usage[f] > last]
+    assert 0 < len(kept) < len(in_use)
+    dropped = learner.discard_unused(since=last + 1)
+    assert dropped == [f for f in in_use if f not in kept] and learner._in_use() == kept
+    assert all(f not in learner.instances.features and f not in learner.usage for f in dropped)
+    for label, net in learner.networks.items():  # re-counted: the CPTs are those a fresh estimate gives
+        tables = {f: net.cpt[f].copy() for f in net.features}
+        learner._estimate(label)
+        assert all(np.array_equal(tables[f], net.cpt[f]) for f in net.features)
+
+
+def test_saved_learner_continues_exactly(shapes, tmp_path):
+    a, _ = train(shapes, seed=4, cycles=1)
+    a.save(tmp_path / "a.json")
+    b = DistinctiveFeatureLearner.load(tmp_path / "a.json")
+    assert b.state_dict() == a.state_dict()
+    for i in list(range(18)) * 2:
+        assert a.learn(shapes, i)[1] == b.learn(shapes, i)[1]
+    assert b.state_dict() == a.state_dict()

@@ -20,10 +20,19 @@ def test_salient_writes_one_png_per_image_and_prints_counts(tmp_path, coil_dir, 
         assert picture is not None and picture.shape[1] > 2 * picture.shape[0]  # two panels side by side
 
 
-def test_default_job_runs_on_the_builtin_scene(tmp_path):
+def test_default_job_runs_the_builtin_plym_task(tmp_path):
     done = subprocess.run([sys.executable, "-m", "training.run"], cwd=tmp_path, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert "builtin-scene.png:" in done.stdout and (tmp_path / "runs/salient/builtin-scene_salient.png").is_file()
+    report = json.loads((tmp_path / "runs/plym/report.json").read_text())
+    assert report["task"] == "plym" and len(report["folds"]) == 2 and len(report["classes"]) == 8
+    assert report["average"]["final"]["test"]["accuracy"] > 1 / 8  # well above chance
+    assert "report: runs/plym/report.md" in done.stdout and "tensorboard --logdir runs/plym/tensorboard" in done.stdout
+    assert "fold 2 cycles" in done.stderr  # progress bars
+
+
+def test_salient_draws_the_builtin_scene_without_images(tmp_path):
+    assert run.main(["salient", "--out", str(tmp_path), "--device", "cpu"]) == 0
+    assert (tmp_path / "builtin-scene_salient.png").is_file()
 
 
 def test_bad_input_is_one_line_and_exit_code_2(tmp_path):

@@ -1,0 +1,144 @@
+"""The recognition protocol of 4.5: learning a fold, exact resume, checkpoint refusal, reports."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from ftorch import FeatureSpace
+from ftorch.environment import ImageSet
+from ftorch.errors import InputError
+from ftorch.learner import DistinctiveFeatureLearner
+from training import run
+from training.datasets import Task, plym_task
+from training.protocol import Fold
+
+CONFIG = {"task": "plym4", "seed": 0, "n_ex": 5, "n_fgen": 10}
+
+
+@pytest.fixture(scope="module")
+def small_task() -> Task:
+    """Four Plym solids at 48 pixels."""
+    full = plym_task(size=48, seed=0)
+    keep = [i for i, label in enumerate(full.labels) if label in ("con6", "cube", "cycu", "cyl3")]
+    return Task("plym4", *([getattr(full, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
+
+
+def make_fold(task: Task, folder, k: int = 1) -> Fold:
+    space = FeatureSpace()
+    train, test = task.fold(k)
+    sets = [ImageSet([task.images[i] for i in idx], [{task.labels[i]} for i in idx], space) for idx in (train, test)]
+    return Fold(k, *sets, dict(CONFIG, classes=task.classes()), folder, task.classes(), progress=False)
+
+
+def without_timing(data):
+    if isinstance(data, dict):
+        return {k: without_timing(v) for k, v in data.items() if k != "seconds"}
+    if isinstance(data, list):
+        return [without_timing(v) for v in data]
+    return data
+
+
+def test_fold_learns_its_training_set_and_beats_chance(small_task, tmp_path):
+    entry, learner = make_fold(small_task, tmp_path).run(max_cycles=30)
+    stage = entry["stages"][0]
+    assert stage["train_learned"] and stage["mistakes_per_cycle"][-1] == 0
+    assert stage["test"]["accuracy"] >= 0.5  # chance is 1/4
+    assert sum(stage["test"][k] for k in ("correct", "wrong", "ambiguous", "confused", "ignorant")) == pytest.approx(1)
+    assert stage["features"]["bn"] == sum(len(n.features) for n in learner.networks.values()) > 0
+    rows = stage["confusion"]
+    assert sum(sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"] for r in rows.values()) == 4 * 7
+    assert DistinctiveFeatureLearner.load(tmp_path / "learner.json").state_dict() == learner.state_dict()
+
+
+def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path):
+    whole, learner = make_fold(small_task, tmp_path / "whole").run(max_cycles=30)
+
+    def stop(cycle):
+        if cycle == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        make_fold(small_task, tmp_path / "cut").run(max_cycles=30, after_cycle=stop)
+    saved = json.loads((tmp_path / "cut" / "checkpoint.json").read_text())
+    assert len(saved["history"]) == 2 and not saved["done"]
+    resumed, again = make_fold(small_task, tmp_path / "cut").run(max_cycles=30, resume=True)  # fresh image sets
+    assert without_timing(resumed) == without_timing(whole)
+    assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
+
+
+def test_damaged_foreign_and_mismatched_checkpoints_are_refused(small_task, tmp_path):
+    fold = make_fold(small_task, tmp_path)
+    fold.run(max_cycles=1)
+    text = fold.checkpoint.read_text()
+    fold.checkpoint.write_text(text[: len(text) // 2])
+    with pytest.raises(InputError, match="not a readable checkpoint"):
+        fold.run(max_cycles=1, resume=True)
+    fold.checkpoint.write_text(json.dumps({"weights": [1, 2, 3]}))
+    with pytest.raises(InputError, match="not an ftorch checkpoint"):
+        fold.run(max_cycles=1, resume=True)
+    fold.checkpoint.write_text(text)
+    fold.config = dict(fold.config, seed=1)
+    with pytest.raises(InputError, match="different run configuration"):
+        fold.run(max_cycles=1, resume=True)
+    with pytest.raises(InputError, match="kind 'learner', expected 'fold'"):
+        (tmp_path / "learner.json").replace(fold.checkpoint)
+        fold.config = dict(fold.config, seed=0)
+        fold.run(max_cycles=1, resume=True)
+    broken = json.loads(fold.checkpoint.read_text())
+    del broken["learner"]["networks"]
+    fold.checkpoint.write_text(json.dumps(broken))
+    with pytest.raises(InputError, match="damaged learner checkpoint .*networks"):
+        DistinctiveFeatureLearner.load(fold.checkpoint)
+    assert not list(tmp_path.glob(".*.tmp"))  # atomic writes leave no temporary files behind
+
+
+def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys):
+    args = ["recognize", "--task", "plym", "--size", "40", "--folds", "1", "--seed", "3", "--device", "cpu", "--quiet"]
+    assert run.main([*args, "--out", str(tmp_path / "a")]) == 0
+    assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
+    printed = capsys.readouterr().out
+    assert "report:" in printed and "tensorboard --logdir" in printed
+    a, b = (json.loads((tmp_path / x / "report.json").read_text()) for x in "ab")
+    assert without_timing(a) == without_timing(b)
+    assert {"task", "classes", "seed", "device", "seconds", "folds", "average"} <= set(a)
+    stage = a["folds"][0]["stages"][0]
+    assert {"stage", "t_ksd", "cycles", "presentations", "train_learned", "test", "features", "seconds"} <= set(stage)
+    assert set(stage["test"]) == {"accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant"}
+    assert set(stage["features"]) == {"bn", "different", "queried", "sampled"}
+    assert set(a["average"]) == {"stage0", "final"} and set(a["average"]["final"]) == {"test", "features"}
+    markdown = (tmp_path / "a" / "report.md").read_text()
+    assert "| task | cls. | fold | acc." in markdown and "amb. | cnf. | ign. | # feats. BN |" in markdown
+    for figure in ("fold1/features.png", "fold1/con6_features.png"):
+        assert figure in markdown and cv2.imread(str(tmp_path / "a" / figure)) is not None
+    events = EventAccumulator(str(tmp_path / "a" / "tensorboard" / "fold1"))
+    events.Reload()
+    tags = events.Tags()["scalars"]
+    assert "test/accuracy" in tags and "train/mistakes_per_cycle" in tags
+    assert events.Scalars("test/accuracy")[0].value == pytest.approx(stage["test"]["accuracy"])
+    assert [e.value for e in events.Scalars("train/mistakes_per_cycle")] == stage["mistakes_per_cycle"]
+
+
+def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task, tmp_path, capsys):
+    for image, label, name in zip(small_task.images, small_task.labels, small_task.names):
+        (tmp_path / "data" / label).mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(tmp_path / "data" / label / f"{name}.png"), (image.numpy() * 255).round().astype(np.uint8))
+    common = ["--task", "folder", "--data", str(tmp_path / "data"), "--device", "cpu", "--quiet"]
+    assert run.main(["recognize", *common, "--folds", "1", "--out", str(tmp_path / "run")]) == 0
+    assert run.main(["evaluate", "--checkpoint", str(tmp_path / "run/fold1/learner.json"), *common,
+                     "--out", str(tmp_path / "eval")]) == 0
+    result = json.loads((tmp_path / "eval" / "evaluate.json").read_text())
+    assert len(result["images"]) == 60 and result["test"]["accuracy"] > 0.5
+    assert "| class |" in (tmp_path / "eval" / "evaluate.md").read_text()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["recognize", "--stages", "2"], "expert stages come with chapter 5"),
+    (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
+    (["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
+])
+def test_bad_runs_get_one_clear_line(argv, message, capsys):
+    assert run.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and message in err and "\n" not in err
