@@ -32,7 +32,7 @@ CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
-def _information(joint: np.ndarray) -> np.ndarray:
+def information(joint: np.ndarray) -> np.ndarray:
     """Mutual information in bits of normalised joint tables (k, 2, 2); 0 where a table is NaN."""
     joint = np.where(joint > 0, joint, 0.0)  # NaN (impossible evidence) and zeros contribute nothing
     outer = joint.sum(2, keepdims=True) * joint.sum(1, keepdims=True)
@@ -292,7 +292,7 @@ class ClassNetwork:
         posterior = joint / total
         open_rows = state[c.singles] < 0
         if open_rows.any():
-            out[c.singles[open_rows]] = _information(posterior[None, :, None] * c.single_cpt[open_rows])
+            out[c.singles[open_rows]] = information(posterior[None, :, None] * c.single_cpt[open_rows])
         n_groups = len(c.groups)
         if n_groups:
             before = np.vstack([np.ones((1, 2)), np.cumprod(likes, 0)])[:n_groups]  # product of the groups before g
@@ -307,7 +307,7 @@ class ClassNetwork:
                 both = np.stack([likes[g][:, None] - present, present], axis=-1).transpose(1, 0, 2)
             else:
                 both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
-            out[group.positions[open_nodes]] = _information(rest[None, :, None] * both)
+            out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
         result = (float(posterior[1]), out)
         if blank:
             self._blank = result
@@ -341,7 +341,7 @@ class ClassNetwork:
         """I(C, F_query | evidence) in bits, eq. 4.2; 0 for an observed feature (alg. 4.4)."""
         if query in evidence:
             return 0.0
-        return float(_information(self.joint(evidence, query)[None])[0])
+        return float(information(self.joint(evidence, query)[None])[0])
 
     def informations(self, evidence: dict[Hashable, int]) -> dict[Hashable, float]:
         """I(C, F | evidence) for every unobserved feature (dict form of :meth:`evaluate`)."""

@@ -61,3 +61,11 @@ def test_benchmark_quick_report_has_every_key(tmp_path):
     assert report["record"]["images_per_s"] > 0
     for section in ("texel", "geometric3", "boolean"):
         assert report[section]["evals_per_s"] > 0 and report[section]["ratio_vs_reference"] > 0
+
+
+def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
+    target = tmp_path / "bench.json"
+    assert bench.main(["recognition", "--quick", "--json", str(target)]) == 0
+    report = json.loads(target.read_text())
+    assert report["evaluations_per_s"] > 0 and report["ratio_vs_pgmpy"] > 0 and report["ratio_vs_einsum"] > 0
+    assert report["max_difference_vs_einsum"] < 1e-9 and report["max_difference_vs_pgmpy"] < 1e-9
