@@ -375,3 +375,9 @@ class ClassNetwork:
 
         return str(BIFWriter(self.to_pgmpy()))
 
+    def to_xmlbif(self) -> str:
+        """The network in XMLBIF, via pgmpy."""
+        from pgmpy.readwrite import XMLBIFWriter
+
+        return str(XMLBIFWriter(self.to_pgmpy()))
+

@@ -53,6 +53,8 @@ class DistinctiveFeatureLearner:
     """
 
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0):
+        if int(n_ex) < 1 or int(n_fgen) < 1:
+            raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
         self.generator = torch.Generator().manual_seed(int(seed))
         self.networks: dict[Hashable, ClassNetwork] = {}

@@ -137,6 +137,7 @@ def test_cycles_and_unknown_arcs_are_refused_and_bif_exports():
         net.add_feature("d", parents=["zzz"])
     bif = net.to_bif()
     assert "variable class" in bif and "probability ( f1 | class, f0 )" in bif
+    assert '<NAME>f1</NAME>' in net.to_xmlbif()
     net.remove_feature("a")
     assert net.parents["b"] == [] and net.cpt["b"].shape == (2, 2)
 

@@ -105,6 +105,7 @@ def recognize_command(args) -> int:
         raise InputError(f"--folds {args.folds}: expected 1 or 2")
     if args.max_cycles < 1:
         raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
+    DistinctiveFeatureLearner(args.n_ex, args.n_fgen)  # refuses bad parameters before any work is done
     start = time.perf_counter()
     torch.manual_seed(args.seed)
     task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed)
@@ -126,6 +127,9 @@ def recognize_command(args) -> int:
             entry, learner = fold.run(args.max_cycles, resume=args.resume)
         folds.append(entry)
         figures += [str(p.relative_to(out)) for p in feature_figures(learner, fold.train, fold.folder)]
+        (fold.folder / "networks").mkdir(exist_ok=True)
+        for label, net in learner.networks.items():
+            (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
         stage = entry["stages"][-1]
         print(f"fold {k}: accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
               f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
