@@ -95,13 +95,19 @@ class DistinctiveFeatureLearner:
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
-    def _discretize(self, label, feature) -> tuple[float, float]:
-        """(cut-point, distinctive power) of a node against the classes it discriminates (def. 4.2)."""
+    def _discretize(self, label, features: list) -> tuple[np.ndarray, np.ndarray]:
+        """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
+        it discriminates (def. 4.2), in one batched KSD."""
         present = self.instances.has(label)
-        against = self.discriminates.get((label, feature)) or frozenset()
-        discriminated = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present
-        result = ksd(torch.tensor(self.instances.values(feature))[None], torch.tensor(present), torch.tensor(discriminated))
-        return float(result.cutpoint[0]), float(result.distinctive[0])
+        masks = {}
+        for f in features:
+            against = self.discriminates.get((label, f)) or frozenset()
+            if against not in masks:
+                masks[against] = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present
+        discriminated = np.stack([masks[self.discriminates.get((label, f)) or frozenset()] for f in features])
+        values = np.stack([self.instances.values(f) for f in features])
+        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated))
+        return result.cutpoint.numpy(), result.distinctive.numpy()
 
     def _estimate(self, label) -> None:
         net = self.networks[label]
@@ -114,10 +120,11 @@ class DistinctiveFeatureLearner:
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior."""
         for label, net in self.networks.items():
-            for f in net.features:
-                cut, _ = self._discretize(label, f)
-                if np.isfinite(cut):
-                    net.threshold[f] = cut
+            if net.features:
+                cuts, _ = self._discretize(label, net.features)
+                for f, cut in zip(net.features, cuts.tolist()):
+                    if np.isfinite(cut):
+                        net.threshold[f] = cut
             self._estimate(label)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
@@ -129,7 +136,7 @@ class DistinctiveFeatureLearner:
         """
         self.presentations += 1
         true = env.labels[image]
-        for label in true:
+        for label in sorted(true, key=str):  # network order breaks ties in alg. 4.4: keep it fixed
             if label not in self.networks:
                 self.networks[label] = ClassNetwork(label)
         self.instances.add(image, true)
@@ -244,7 +251,7 @@ class DistinctiveFeatureLearner:
         char, disc, char_is_true = chosen
         sample = image if char_is_true else self._pick(env.examples(char, self.n_ex, self.generator))
         examples = env.examples(char, self.n_ex, self.generator)
-        for d in disc:
+        for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
             examples += env.examples(d, self.n_ex, self.generator)
         images = list(dict.fromkeys([image, sample, *examples]))
         net = self.networks[char]
@@ -257,7 +264,7 @@ class DistinctiveFeatureLearner:
             self._measure(env, candidates + net.features, images)
             for candidate in candidates:
                 self.discriminates[(char, candidate)] = disc
-                cut, power = self._discretize(char, candidate)
+                cut, power = (float(v[0]) for v in self._discretize(char, [candidate]))
                 if power <= 0:
                     del self.discriminates[(char, candidate)]
                     failed.append(candidate)

@@ -1,6 +1,9 @@
 """The recognition protocol of 4.5: learning a fold, exact resume, checkpoint refusal, reports."""
 import json
+import os
 import re
+import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -151,3 +154,15 @@ def test_bad_runs_get_one_clear_line(argv, message, capsys):
     assert run.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and message in err and "\n" not in err
+
+
+def test_same_seed_same_report_across_processes(tmp_path):
+    """Python randomizes str hashes per process: no result may depend on set iteration order."""
+    texts = []
+    for hash_seed in ("1", "2"):
+        done = subprocess.run([sys.executable, "-m", "training.run", "recognize", "--task", "plym", "--size", "32",
+                               "--folds", "1", "--device", "cpu", "--quiet", "--out", str(tmp_path / hash_seed)],
+                              capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": hash_seed})
+        assert done.returncode == 0, done.stderr
+        texts.append(re.sub(r'"seconds": [0-9.e+-]+', '"seconds": _', (tmp_path / hash_seed / "report.json").read_text()))
+    assert texts[0] == texts[1]
