@@ -95,14 +95,15 @@ def plym_task(size: int = 64, seed: int = 0) -> Task:
     return Task("plym", images, labels, names, positions)
 
 
-def load_task(name: str, data=None, classes: int = 6, views: int = 20, size: int = 64, seed: int = 0) -> Task:
+def load_task(name: str, data=None, classes: int = 6, views: int = 20, size: int = 64, seed: int = 0,
+              first_view: int = 0) -> Task:
     """The task named on the command line."""
     if name == "plym":
         return plym_task(size, seed)
     if data is None:
         raise InputError(f"--task {name} needs --data DIR")
     if name == "coil":
-        return coil_task(data, classes, views)
+        return coil_task(data, classes, views, first_view)
     if name == "folder":
         return folder_task(data)
     raise InputError(f"--task {name!r}: expected coil, folder or plym")

@@ -108,11 +108,11 @@ def recognize_command(args) -> int:
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen)  # refuses bad parameters before any work is done
     start = time.perf_counter()
     torch.manual_seed(args.seed)
-    task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed)
+    task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
     out = Path(args.out or f"runs/{task.name}")
     logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
     config = {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
-              "classes": task.classes(), "views": args.views, "size": args.size, "seed": args.seed,
+              "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": args.seed,
               "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(device)}
     space = FeatureSpace().to(device)
     progress = not args.quiet
@@ -147,7 +147,7 @@ def recognize_command(args) -> int:
 def evaluate_command(args) -> int:
     device = resolve_device(args.device)
     learner = DistinctiveFeatureLearner.load(args.checkpoint)
-    task = load_task(args.task, args.data, args.classes, args.views)
+    task = load_task(args.task, args.data, args.classes, args.views, first_view=args.first_view)
     known = [str(c) for c in learner.networks]
     unknown = sorted(set(task.labels) - set(known))
     if unknown:
@@ -177,6 +177,7 @@ def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: s
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
     p.add_argument("--classes", type=int, default=6, help="COIL objects 1..N (default 6)")
     p.add_argument("--views", type=int, default=20, help="consecutive COIL views per object (default 20)")
+    p.add_argument("--first-view", type=int, default=0, help="first COIL view (default 0)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
