@@ -53,3 +53,19 @@ def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor) -> KSD:
     cutpoint = torch.where(found, cut, torch.full_like(cut, math.nan))
     characteristic = difference.gather(1, at[:, None])[:, 0] > 0
     return KSD(distance, cutpoint, torch.where(found & characteristic, distance, torch.zeros_like(distance)))
+
+
+def distinctive_at(values: Tensor, cutpoint: Tensor, characterized: Tensor, discriminated: Tensor) -> Tensor:
+    """Distinctive power (F,) of each row of ``values`` (F, n) at a given cut-point alpha (F,), the
+    KSD_{c,d}(f) of alg. 5.2 for a node already discretized: cdf(alpha | discriminated) -
+    cdf(alpha | characterized) where positive, else 0, with cdf counting values <= alpha (a node
+    is present above its cut-point); 0 where a group has no finite value."""
+    values = torch.as_tensor(values, dtype=torch.float64)
+    finite = torch.isfinite(values)
+    a = torch.as_tensor(discriminated, dtype=torch.bool).expand_as(values) & finite
+    b = torch.as_tensor(characterized, dtype=torch.bool).expand_as(values) & finite
+    below = values <= torch.as_tensor(cutpoint, dtype=torch.float64)[:, None]
+    cdf_a = (a & below).sum(1, dtype=torch.float64) / a.sum(1).clamp_min(1)
+    cdf_b = (b & below).sum(1, dtype=torch.float64) / b.sum(1).clamp_min(1)
+    power = (cdf_a - cdf_b).clamp_min(0.0)
+    return torch.where(a.any(1) & b.any(1), power, torch.zeros_like(power))

@@ -1,9 +1,12 @@
-"""The incremental distinctive-feature learner (alg. 4.7, 4.8, 4.10).
+"""The incremental distinctive-feature learner (alg. 4.7, 4.8, 4.10) with expert learning (alg. 5.1, 5.2).
 
 It starts blank, recognizes each image it is shown (alg. 4.4) and learns only from mistakes:
 first by re-discretizing and re-counting (alg. 4.7 step 3), then by searching for one new
 feature that fixes the mistake (alg. 4.8), generated in order of structural complexity by the
-five methods of alg. 4.10, n_fgen candidates each.
+five methods of alg. 4.10, n_fgen candidates each. With a KSD target t_KSD > 0 (alg. 5.1) a
+new feature must also reach distinctive power >= t_KSD, and a correct recognition that leaves
+some class uncertain triggers expert learning for the least-well-discriminated class pair
+(alg. 5.2) when that pair's best consulted feature falls short of t_KSD.
 
 Decisions the text leaves open:
 - A method's n_fgen candidates are drawn together when the method starts, from the pools as
@@ -15,10 +18,16 @@ Decisions the text leaves open:
   ambiguous case, where the feature is sampled from an example image of that false class).
 - Nodes are discretized against the classes they were learned to discriminate (all other
   classes where none is recorded); a node whose KSD has no cut-point keeps its threshold.
+- Alg. 5.1 calls alg. 4.10 "until" a candidate reaches t_KSD; here one presentation tries each
+  method's n_fgen candidates once (bounded work); the next presentation of the image tries again.
+  An expert feature is accepted when it reaches t_KSD and the image is still recognized correctly.
+- KSD_{c,d}(f) of alg. 5.2 is the distinctive power of f between instances of c and instances
+  of d that are not of c; a class with no consulted feature of its own scores 0 against every d.
 """
 from __future__ import annotations
 
 from collections.abc import Hashable
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -30,11 +39,24 @@ from .errors import InputError
 from .features import Conjunction, Disjunction, Feature, LocalFeature
 from .generate import expand_geometric, random_edgel_pair, random_texel
 from .instances import InstanceList
-from .ksd import ksd
-from .recognition import Recognition, outcome, recognize
+from .ksd import distinctive_at, ksd
+from .recognition import Recognition, outcome, recognize, residual_entropy
 
 
 KIND = "learner"
+
+
+class Presentation(NamedTuple):
+    """What one training presentation did (alg. 4.7 / 5.1). ``result`` is 'correct',
+    'reestimated', 'learned', 'failed', 'expert' (an expert feature was added) or 'expert-failed'.
+    ``entropy``: residual entropy per class in bits; ``pair`` and ``ksd``: alg. 5.2's choice and its
+    KSD_{c,d} (eq. 5.1), None where no class was left uncertain."""
+
+    recognition: Recognition
+    result: str
+    entropy: dict
+    pair: tuple | None = None
+    ksd: float | None = None
 
 
 def _label(value):
@@ -128,12 +150,13 @@ class DistinctiveFeatureLearner:
             self._estimate(label)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
-    def learn(self, env: ImageSet, image: int) -> tuple[Recognition, str]:
-        """Present one training image. Returns its first recognition and what happened:
-        'correct', 'reestimated' (fixed by re-counting), 'learned' (a new feature) or 'failed'.
+    def learn(self, env: ImageSet, image: int, t_ksd: float = 0.0) -> Presentation:
+        """Present one training image (alg. 4.7, and alg. 5.1 with the KSD target ``t_ksd``).
 
         One learner learns from one :class:`ImageSet`: its image indices are the instance ids.
         """
+        if not 0.0 <= t_ksd <= 1.0:
+            raise InputError(f"t_ksd must lie in [0, 1], got {t_ksd}")
         self.presentations += 1
         true = env.labels[image]
         for label in sorted(true, key=str):  # network order breaks ties in alg. 4.4: keep it fixed
@@ -141,13 +164,63 @@ class DistinctiveFeatureLearner:
                 self.networks[label] = ClassNetwork(label)
         self.instances.add(image, true)
         first = self._training_recognition(env, image)
+        entropy = residual_entropy(first)
         if outcome(first.recognized, true) == "correct":
-            return first, "correct"
+            return self._expert(env, image, first, entropy, t_ksd)
         self.reestimate()
         again = self._training_recognition(env, image)
         if outcome(again.recognized, true) == "correct":
-            return first, "reestimated"
-        return first, "learned" if self._learn_feature(env, image, again) else "failed"
+            return Presentation(first, "reestimated", entropy)
+        chosen = self.choose_classes(again, true)
+        if chosen is None:
+            return Presentation(first, "failed", entropy)
+        char, disc, char_is_true = chosen
+        learned = self._search(env, image, char, disc, char_is_true, t_ksd,
+                               lambda after: (char in after.recognized) == char_is_true)
+        return Presentation(first, "learned" if learned else "failed", entropy)
+
+    def _expert(self, env: ImageSet, image: int, rec: Recognition, entropy: dict, t_ksd: float) -> Presentation:
+        """Alg. 5.1 steps 2-4 on a correctly recognized image."""
+        true = env.labels[image]
+        chosen = self.choose_pair(rec, true, entropy)
+        if chosen is None:
+            return Presentation(rec, "correct", entropy)
+        c, d, weakest = chosen
+        if weakest >= t_ksd:
+            return Presentation(rec, "correct", entropy, (c, d), weakest)
+        learned = self._search(env, image, c, frozenset({d}), c in true, t_ksd,
+                               lambda after: outcome(after.recognized, true) == "correct")
+        return Presentation(rec, "expert" if learned else "expert-failed", entropy, (c, d), weakest)
+
+    def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
+        """Alg. 5.2: (c, d, KSD_{c,d}) for the least-well-discriminated pair of a class c with
+        residual entropy and a class d on the other side of the truth (eq. 5.1); None if no class
+        is uncertain or no such pair exists."""
+        best = None
+        labels = list(self.networks)
+        for c in labels:
+            if entropy.get(c, 0.0) <= 0:
+                continue
+            others = [d for d in labels if (d in true) != (c in true)]
+            if not others:
+                continue
+            net = self.networks[c]
+            consulted = [f for f in net.features if f in rec.values]
+            present = torch.from_numpy(self.instances.has(c))
+            scores = []
+            if consulted:
+                values = torch.from_numpy(np.stack([self.instances.values(f) for f in consulted]))
+                cuts = torch.tensor([net.threshold[f] for f in consulted], dtype=torch.float64)
+            for d in others:
+                if consulted:
+                    power = distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present)
+                    scores.append(float(power.max()))
+                else:
+                    scores.append(0.0)
+            j = int(np.argmin(scores))
+            if best is None or scores[j] < best[2]:
+                best = (c, others[j], scores[j])
+        return best
 
     def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
         rec = self.recognize(env, image)
@@ -242,13 +315,10 @@ class DistinctiveFeatureLearner:
             made.append(kind(a, b))
         return made
 
-    def _learn_feature(self, env: ImageSet, image: int, rec: Recognition) -> bool:
-        """Alg. 4.8: add one feature that fixes the recognition of ``image``."""
-        true = env.labels[image]
-        chosen = self.choose_classes(rec, true)
-        if chosen is None:
-            return False
-        char, disc, char_is_true = chosen
+    def _search(self, env: ImageSet, image: int, char, disc: frozenset, char_is_true: bool, t_ksd: float,
+                succeeded) -> bool:
+        """Alg. 4.8 from step 2: add one feature characteristic of ``char`` against ``disc`` with
+        distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``."""
         sample = image if char_is_true else self._pick(env.examples(char, self.n_ex, self.generator))
         examples = env.examples(char, self.n_ex, self.generator)
         for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
@@ -265,7 +335,7 @@ class DistinctiveFeatureLearner:
             for candidate in candidates:
                 self.discriminates[(char, candidate)] = disc
                 cut, power = (float(v[0]) for v in self._discretize(char, [candidate]))
-                if power <= 0:
+                if power <= 0 or power < t_ksd:
                     del self.discriminates[(char, candidate)]
                     failed.append(candidate)
                     continue
@@ -274,7 +344,7 @@ class DistinctiveFeatureLearner:
                 self._estimate(char)
                 after = self.recognize(env, image)
                 self._record(image, after)
-                if (char in after.recognized) == char_is_true:
+                if succeeded(after):
                     self._mark_usage([*after.queried, candidate])
                     return True
                 net.remove_feature(candidate)

@@ -9,6 +9,7 @@ network keeps its belief. Ties in I_max go to the first network, then the first 
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 
@@ -36,6 +37,14 @@ def accuracy(recognized: Iterable[Hashable], true: Iterable[Hashable], n_classes
     if n_t + n_f == 0:
         return len(true) / n_classes
     return n_t / (len(true) + n_f)
+
+
+def residual_entropy(rec: "Recognition") -> dict:
+    """Entropy in bits of every class node after recognition (alg. 5.1 step 2)."""
+    out = {}
+    for label, p in rec.posteriors.items():
+        out[label] = 0.0 if not 0.0 < p < 1.0 else float(-(p * math.log2(p) + (1 - p) * math.log2(1 - p)))
+    return out
 
 
 @dataclass

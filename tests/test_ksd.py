@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy.stats import ks_2samp
 
-from ftorch.ksd import ksd
+from ftorch.ksd import distinctive_at, ksd
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -56,3 +56,25 @@ def test_hand_made_cases():
 def test_empty_group_gives_zero():
     result = ksd(torch.tensor([[0.1, 0.2]]), torch.tensor([False, False]), torch.tensor([True, True]))
     assert result.distance.item() == 0.0 and result.distinctive.item() == 0.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_distinctive_at_a_cutpoint_brute_force(seed):
+    """At ksd's own cut-point it reproduces the distinctive power; at any cut-point it matches
+    counting by hand, unmeasured (NaN) instances ignored."""
+    rng = np.random.default_rng(seed)
+    values = rng.normal(0, 1, (6, 30))
+    values[:, :15] += rng.uniform(-2, 2, (6, 1))
+    values[rng.random(values.shape) < 0.2] = np.nan
+    characterized = np.arange(30) < 15
+    discriminated = ~characterized & (np.arange(30) % 3 > 0)
+    own = ksd(torch.tensor(values), torch.tensor(characterized), torch.tensor(discriminated))
+    at_own = distinctive_at(torch.tensor(values), own.cutpoint, torch.tensor(characterized), torch.tensor(discriminated))
+    assert torch.allclose(at_own, own.distinctive, atol=1e-12)
+    cuts = rng.normal(0, 1, 6)
+    got = distinctive_at(torch.tensor(values), torch.tensor(cuts), torch.tensor(characterized), torch.tensor(discriminated))
+    for f in range(6):
+        a = values[f][discriminated & np.isfinite(values[f])]
+        b = values[f][characterized & np.isfinite(values[f])]
+        expected = max((a <= cuts[f]).mean() - (b <= cuts[f]).mean(), 0.0)
+        assert got[f].item() == pytest.approx(expected, abs=1e-12)

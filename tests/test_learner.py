@@ -7,7 +7,9 @@ import torch
 from ftorch.environment import ImageSet
 from ftorch.instances import InstanceList
 from ftorch.learner import DistinctiveFeatureLearner
-from ftorch.recognition import Recognition, accuracy
+from ftorch.bayes import ClassNetwork
+from ftorch.errors import InputError
+from ftorch.recognition import Recognition, accuracy, residual_entropy
 
 
 def shape(kind: int, angle: float, rng, size: int = 40) -> np.ndarray:
@@ -151,3 +153,45 @@ def test_saved_learner_continues_exactly(shapes, tmp_path):
     for i in list(range(18)) * 2:
         assert a.learn(shapes, i)[1] == b.learn(shapes, i)[1]
     assert b.state_dict() == a.state_dict()
+
+
+def test_choose_pair_takes_the_least_well_discriminated_pair_alg_5_2():
+    """Class A (true, uncertain) has a feature that separates it from C perfectly but not from B."""
+    learner = DistinctiveFeatureLearner()
+    for image, label, value in [(0, "A", 0.9), (1, "A", 0.8), (2, "B", 0.85), (3, "B", 0.1), (4, "C", 0.1), (5, "C", 0.2)]:
+        learner.instances.add(image, {label})
+        learner.instances.set(image, "f", value)
+    for label in "ABC":
+        learner.networks[label] = ClassNetwork(label)
+    learner.networks["A"].add_feature("f")
+    rec = Recognition({"A": 0.7, "B": 0.2, "C": 0.0}, {"A"}, ["f"], {"f": 0.9})
+    entropy = residual_entropy(rec)
+    assert entropy["C"] == 0 and entropy["A"] > 0 and entropy["B"] > 0
+    c, d, weakest = learner.choose_pair(rec, frozenset({"A"}), entropy)
+    # A vs B: KSD 0.5 (one B value above the cut); A vs C: 1.0; B has no consulted feature: 0 against A
+    assert (c, d, weakest) == ("B", "A", 0.0)
+    learner.networks["B"].add_feature("f")
+    c, d, weakest = learner.choose_pair(rec, frozenset({"A"}), entropy)
+    assert (c, d) == ("B", "A") and weakest == 0.0  # f is characteristic of A, not of B: zero power for B
+    learner.networks["B"].remove_feature("f")
+    entropy["B"] = 0.0
+    assert learner.choose_pair(rec, frozenset({"A"}), entropy) == ("A", "B", pytest.approx(0.5))
+
+
+def test_expert_features_meet_the_ksd_target(shapes):
+    learner, _ = train(shapes, seed=5, cycles=10)
+    accepted = 0
+    for i in list(range(18)) * 2:
+        before = {label: set(net.features) for label, net in learner.networks.items()}
+        p = learner.learn(shapes, i, t_ksd=0.9)
+        if p.result in ("expert", "expert-failed"):
+            c, d = p.pair
+            assert p.entropy[c] > 0 and p.ksd < 0.9 and (c in shapes.labels[i]) != (d in shapes.labels[i])
+        if p.result == "expert":
+            (new,) = set(learner.networks[p.pair[0]].features) - before[p.pair[0]]
+            assert learner._discretize(p.pair[0], [new])[1][0] >= 0.9
+            assert learner.discriminates[(p.pair[0], new)] == {p.pair[1]}
+            accepted += 1
+    assert accepted > 0
+    with pytest.raises(InputError, match="t_ksd"):
+        learner.learn(shapes, 0, t_ksd=1.5)

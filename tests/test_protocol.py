@@ -17,7 +17,7 @@ from ftorch.errors import InputError
 from ftorch.learner import DistinctiveFeatureLearner
 from training import run
 from training.datasets import Task, plym_task
-from training.protocol import Fold
+from training.protocol import Fold, next_target
 
 CONFIG = {"task": "plym4", "seed": 0, "n_ex": 5, "n_fgen": 10}
 
@@ -58,17 +58,21 @@ def test_fold_learns_its_training_set_and_beats_chance(small_task, tmp_path):
 
 
 def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path):
-    whole, learner = make_fold(small_task, tmp_path / "whole").run(max_cycles=30)
+    """Four expert stages; the run is cut after the first cycle of the last, which learns expert features."""
+    whole, learner = make_fold(small_task, tmp_path / "whole").run(max_cycles=4, stages=4)
+    assert [s["stage"] for s in whole["stages"]] == [0, 1, 2, 3, 4]
+    assert whole["stages"][-1]["expert_per_cycle"][0] > 0
+    cut_at = sum(s["cycles"] for s in whole["stages"][:-1]) + 1
 
     def stop(cycle):
-        if cycle == 2:
+        if cycle == cut_at:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        make_fold(small_task, tmp_path / "cut").run(max_cycles=30, after_cycle=stop)
-    saved = json.loads((tmp_path / "cut" / "checkpoint.json").read_text())
-    assert len(saved["history"]) == 2 and not saved["done"]
-    resumed, again = make_fold(small_task, tmp_path / "cut").run(max_cycles=30, resume=True)  # fresh image sets
+        make_fold(small_task, tmp_path / "cut").run(max_cycles=4, stages=4, after_cycle=stop)
+    saved = json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["state"]
+    assert saved["total_cycles"] == cut_at and saved["stage"] == 4 and len(saved["stages"]) == 4
+    resumed, again = make_fold(small_task, tmp_path / "cut").run(max_cycles=4, stages=4, resume=True)  # fresh image sets
     assert without_timing(resumed) == without_timing(whole)
     assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
 
@@ -144,7 +148,7 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["recognize", "--stages", "2"], "expert stages come with chapter 5"),
+    (["recognize", "--stages", "many"], "expected a number of expert stages"),
     (["recognize", "--n-ex", "0"], "n_ex and n_fgen must be at least 1"),
     (["recognize", "--size", "8"], "too small"),
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
@@ -166,3 +170,25 @@ def test_same_seed_same_report_across_processes(tmp_path):
         assert done.returncode == 0, done.stderr
         texts.append(re.sub(r'"seconds": [0-9.e+-]+', '"seconds": _', (tmp_path / hash_seed / "report.json").read_text()))
     assert texts[0] == texts[1]
+
+
+@pytest.mark.parametrize("t, ksd_min, expected", [
+    (0.0, 0.0, 0.5), (0.0, 0.3, 0.5), (0.5, 0.9, 0.75), (0.75, 0.8, 0.875), (0.875, 1.0, 0.9375),
+    (0.9375, 1.0, 0.96875), (0.96875, 1.0, 1.0),  # 0.984 > 0.98 becomes 1
+    (0.75, 0.6, 0.8),  # a missed target ramps from KSD_min, not t
+])
+def test_t_ksd_schedule(t, ksd_min, expected):
+    assert next_target(t, ksd_min) == pytest.approx(expected)
+
+
+def test_expert_stages_raise_the_target_and_test_after_each(small_task, tmp_path):
+    entry, learner = make_fold(small_task, tmp_path).run(max_cycles=4, stages=4)
+    stages = entry["stages"]
+    assert [s["t_ksd"] for s in stages][:2] == [0.0, 0.5]
+    for before, after in zip(stages, stages[1:]):
+        assert after["t_ksd"] == pytest.approx(next_target(before["t_ksd"], before["ksd_min"]))
+        assert after["presentations"] > before["presentations"] and after["features"]["sampled"] >= before["features"]["sampled"]
+    assert sum(sum(s["expert_per_cycle"]) for s in stages[1:]) > 0  # expert features were learned
+    assert sum(stages[0]["expert_per_cycle"]) == 0  # t = 0: chapter 4 learning only
+    for stage in stages:
+        assert stage["target_met"] == (stage["train_learned"] and stage["ksd_min"] >= stage["t_ksd"])

@@ -1,10 +1,18 @@
-"""The recognition protocol of 4.5: train on one fold until the training set is learned, test, checkpoint.
+"""The recognition protocol of 4.5 in training stages (alg. 5.3): train, test after each stage, checkpoint.
 
-Training presents the training images one by one in a fresh random permutation each cycle
-and stops after the first cycle without a mistake (or ``max_cycles``). Example images for
-alg. 4.8 come from the training set. After every cycle the fold's state (learner, the
-permutation generator, the value cache, the stages so far) is written to its checkpoint, so
-an interrupted fold resumes to exactly the result it would have reached.
+A stage presents the training images one by one in a fresh random permutation each cycle
+until a cycle has no mistake or ``max_cycles`` (20 in alg. 5.3) cycles have passed. At the end
+of every cycle, features not consulted during it are discarded. Stage s learns with the KSD
+target t(s): t(0) = 0 (chapter 4 learning), t(s+1) = 1 - (1 - min(KSD_min(s), t(s))) / 2, set
+to 1 above 0.98 (DESIGN.md), where KSD_min(s) is the smallest KSD_{c,d} of alg. 5.2 met in
+the stage's final cycle (1 when no recognition left a class uncertain). A stage meets its
+target when the training set was learned and KSD_min(s) >= t(s). ``stages=None`` ("auto")
+runs until a stage at t = 1 is done or two stages in a row miss their target (at most
+``AUTO_LIMIT`` stages). Example images for alg. 4.8 come from the training set.
+
+After every cycle the fold's state (learner, permutation generator, value cache, stages so
+far) is written to its checkpoint, so an interrupted fold resumes to exactly the result it
+would have reached.
 """
 from __future__ import annotations
 
@@ -25,6 +33,14 @@ from ftorch.recognition import Recognition, accuracy, outcome
 
 OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
 FOLD_KIND = "fold"
+MISTAKES = ("reestimated", "learned", "failed")  # presentations whose first recognition was not correct
+AUTO_LIMIT = 12
+
+
+def next_target(t: float, ksd_min: float) -> float:
+    """Alg. 5.3 step 3 as DESIGN.md reads it."""
+    t = 1 - (1 - min(ksd_min, t)) / 2
+    return 1.0 if t > 0.98 else t
 
 
 def test_block(recognitions: list[Recognition], labels: list[frozenset], classes: list) -> dict:
@@ -84,10 +100,10 @@ class Fold:
     def checkpoint(self) -> Path:
         return self.folder / "checkpoint.json"
 
-    def _save(self, learner, order, history, stages, seconds, done):
+    def _save(self, learner, order, state: dict):
         save_checkpoint(self.checkpoint, FOLD_KIND, {
-            "config": self.config, "fold": self.fold, "history": history, "stages": stages, "done": done,
-            "seconds": seconds, "order": encode_array(order.get_state().numpy().astype(np.float64)),
+            "config": self.config, "fold": self.fold, "state": state,
+            "order": encode_array(order.get_state().numpy().astype(np.float64)),
             "learner": learner.state_dict(), "cache": self.train.cache_state()})
 
     def _resume(self):
@@ -101,52 +117,95 @@ class Fold:
             learner.load_state_dict(data["learner"])
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
             self.train.load_cache_state(data["cache"])
+            state = dict(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
-        return learner, order, data["history"], data["stages"], data["seconds"], data["done"]
+        return learner, order, state
 
-    def run(self, max_cycles: int, resume: bool = False, after_cycle=None) -> tuple[dict, DistinctiveFeatureLearner]:
-        """Train stage 0 and test; returns the fold's report entry and the learner (also saved as
-        learner.json). ``after_cycle(cycle)`` is called after each cycle's checkpoint is written."""
+    def run(self, max_cycles: int = 20, stages: int | None = 0, resume: bool = False,
+            after_cycle=None) -> tuple[dict, DistinctiveFeatureLearner]:
+        """Train stages 0..``stages`` (None: auto) and test after each; returns the fold's report
+        entry and the learner (also saved as learner.json). ``after_cycle(n)`` is called after
+        the n-th cycle's checkpoint is written."""
         seed = self.config["seed"] * 1000 + self.fold
         if resume and self.checkpoint.is_file():
-            learner, order, history, stages, elapsed, done = self._resume()
+            learner, order, state = self._resume()
         else:
             learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed)
             order = torch.Generator().manual_seed(seed)
-            history, stages, elapsed, done = [], [], 0.0, False
-        start = time.perf_counter() - elapsed
-        with tqdm(total=max_cycles, initial=len(history), desc=f"fold {self.fold} cycles", unit="cycle",
-                  disable=not self.progress, leave=False) as bar:
-            while not done and len(history) < max_cycles:
-                mistakes = sum(learner.learn(self.train, i)[1] != "correct"
-                               for i in torch.randperm(len(self.train), generator=order).tolist())
-                history.append(mistakes)
-                done = mistakes == 0
-                bar.update(1)
-                bar.set_postfix(mistakes=mistakes, features=sum(len(n.features) for n in learner.networks.values()))
-                if self.logger is not None:
-                    self.logger.add_scalar("train/mistakes_per_cycle", mistakes, len(history))
-                self._save(learner, order, history, stages, time.perf_counter() - start, done)
-                if after_cycle is not None:
-                    after_cycle(len(history))
-        if not stages:
-            stages.append(self._stage(learner, history, time.perf_counter() - start))
-            self._save(learner, order, history, stages, time.perf_counter() - start, True)
+            state = {"stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
+                     "total_cycles": 0, "seconds": 0.0}
+        start = time.perf_counter() - state["seconds"]
+        limit = AUTO_LIMIT if stages is None else stages + 1
+        with tqdm(desc=f"fold {self.fold}", unit="cycle", disable=not self.progress, leave=False) as bar:
+            while not state["done"]:
+                cycles = state["cycles"]
+                if cycles and (cycles[-1]["mistakes"] == 0 or len(cycles) >= max_cycles):
+                    self._finish_stage(learner, state, start, stages, limit)
+                else:
+                    cycles.append(self._cycle(learner, order, state["t_ksd"]))
+                    state["total_cycles"] += 1
+                    bar.update(1)
+                    bar.set_postfix(stage=state["stage"], t_ksd=state["t_ksd"], mistakes=cycles[-1]["mistakes"],
+                                    features=cycles[-1]["features"])
+                    self._log_cycle(state["total_cycles"], cycles[-1])
+                state["seconds"] = time.perf_counter() - start
+                self._save(learner, order, state)
+                if after_cycle is not None and not state["done"] and len(state["cycles"]):
+                    after_cycle(state["total_cycles"])
         learner.save(self.folder / "learner.json")
-        return {"fold": self.fold, "stages": stages}, learner
+        return {"fold": self.fold, "stages": state["stages"]}, learner
 
-    def _stage(self, learner, history, seconds) -> dict:
+    def _cycle(self, learner: DistinctiveFeatureLearner, order: torch.Generator, t_ksd: float) -> dict:
+        """One pass over the training set in a fresh order, then discarding (alg. 5.3 step 2)."""
+        begin = learner.presentations
+        results, ksd_min = [], 1.0
+        for i in torch.randperm(len(self.train), generator=order).tolist():
+            p = learner.learn(self.train, i, t_ksd)
+            results.append(p.result)
+            if p.ksd is not None:
+                ksd_min = min(ksd_min, p.ksd)
+        discarded = learner.discard_unused(since=begin + 1)
+        return {"mistakes": sum(r in MISTAKES for r in results), "expert": results.count("expert"),
+                "expert_failed": results.count("expert-failed"), "ksd_min": ksd_min, "discarded": len(discarded),
+                "features": sum(len(n.features) for n in learner.networks.values())}
+
+    def _finish_stage(self, learner, state: dict, start: float, stages: int | None, limit: int) -> None:
+        cycles, t = state["cycles"], state["t_ksd"]
+        learned = cycles[-1]["mistakes"] == 0
+        ksd_min = cycles[-1]["ksd_min"]
+        met = learned and ksd_min >= t
         recognitions = learner.recognize_many(self.test, range(len(self.test)))
-        stage = {"stage": 0, "t_ksd": 0.0, "cycles": len(history), "presentations": learner.presentations,
-                 "train_learned": bool(history and history[-1] == 0), "mistakes_per_cycle": list(history),
+        stage = {"stage": state["stage"], "t_ksd": t, "cycles": len(cycles), "presentations": learner.presentations,
+                 "train_learned": learned, "ksd_min": ksd_min, "target_met": met,
+                 "mistakes_per_cycle": [c["mistakes"] for c in cycles],
+                 "expert_per_cycle": [c["expert"] for c in cycles],
+                 "discarded_per_cycle": [c["discarded"] for c in cycles],
                  "test": test_block(recognitions, self.test.labels, self.classes),
                  "features": feature_block(learner, recognitions),
                  "confusion": confusion(recognitions, self.test.labels, self.classes, learner.networks),
-                 "seconds": seconds}
+                 "seconds": time.perf_counter() - start}
+        state["stages"].append(stage)
+        self._log_stage(stage)
+        state["misses"] = 0 if met else state["misses"] + 1
+        finished_auto = stages is None and (t >= 1.0 or state["misses"] >= 2)
+        state["done"] = finished_auto or len(state["stages"]) >= limit
+        state["stage"] += 1
+        state["t_ksd"] = next_target(t, ksd_min)
+        state["cycles"] = []
+
+    def _log_cycle(self, step: int, cycle: dict) -> None:
         if self.logger is not None:
-            for key, value in stage["test"].items():
-                self.logger.add_scalar(f"test/{key}", value, 0)
-            for key, value in stage["features"].items():
-                self.logger.add_scalar(f"features/{key}", value, 0)
-        return stage
+            for key in ("mistakes", "expert", "discarded", "features", "ksd_min"):
+                self.logger.add_scalar(f"train/{key}_per_cycle" if key != "ksd_min" else "train/ksd_min", cycle[key], step)
+
+    def _log_stage(self, stage: dict) -> None:
+        if self.logger is None:
+            return
+        s = stage["stage"]
+        for key, value in stage["test"].items():
+            self.logger.add_scalar(f"test/{key}", value, s)
+        for key, value in stage["features"].items():
+            self.logger.add_scalar(f"features/{key}", value, s)
+        for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned"):
+            self.logger.add_scalar(f"stage/{key}", float(stage[key]), s)

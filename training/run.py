@@ -2,8 +2,9 @@
 
 Commands:
   recognize --task coil|folder|plym ...   the recognition protocol of 4.5 (two-fold cross
-                               validation, stage 0): report.json, report.md, feature figures,
-                               TensorBoard logs and a resumable checkpoint per fold.
+                               validation) in training stages (alg. 5.3): report.json,
+                               report.md, feature figures, TensorBoard logs and a resumable
+                               checkpoint per fold.
   evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
@@ -99,8 +100,12 @@ def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: P
 
 def recognize_command(args) -> int:
     device = resolve_device(args.device)
-    if args.stages != 0:
-        raise InputError(f"--stages {args.stages}: this version runs stage 0 (chapter 4); expert stages come with chapter 5")
+    if args.stages == "auto":
+        stages = None
+    elif args.stages.isdigit():
+        stages = int(args.stages)
+    else:
+        raise InputError(f"--stages {args.stages!r}: expected a number of expert stages (0, 1, ...) or auto")
     if args.folds not in (1, 2):
         raise InputError(f"--folds {args.folds}: expected 1 or 2")
     if args.max_cycles < 1:
@@ -113,7 +118,8 @@ def recognize_command(args) -> int:
     logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
     config = {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
               "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": args.seed,
-              "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(device)}
+              "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(device), "stages": args.stages,
+              "max_cycles": args.max_cycles}
     space = FeatureSpace().to(device)
     progress = not args.quiet
     folds, figures = [], []
@@ -124,15 +130,16 @@ def recognize_command(args) -> int:
         with SummaryWriter(str(logdir / f"fold{k}")) as writer:
             fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
                         out / f"fold{k}", task.classes(), progress, writer)
-            entry, learner = fold.run(args.max_cycles, resume=args.resume)
+            entry, learner = fold.run(args.max_cycles, stages, resume=args.resume)
         folds.append(entry)
         figures += [str(p.relative_to(out)) for p in feature_figures(learner, fold.train, fold.folder)]
         (fold.folder / "networks").mkdir(exist_ok=True)
         for label, net in learner.networks.items():
             (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
-        stage = entry["stages"][-1]
-        print(f"fold {k}: accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
-              f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
+        for stage in entry["stages"]:
+            print(f"fold {k} stage {stage['stage']} (t_KSD {stage['t_ksd']:.3f}{', met' if stage['target_met'] else ''}): "
+                  f"accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
+                  f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
     seconds = time.perf_counter() - start
     report = build_report(config, str(device), seconds, folds)
     write_json(out / "report.json", report)
@@ -185,15 +192,15 @@ def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: s
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command")
-    p = commands.add_parser("recognize", help="recognition protocol of 4.5 (two folds, stage 0)")
+    p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
     _task_options(p, ("plym", "coil", "folder"), "plym")
     p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
-    p.add_argument("--stages", type=int, default=0, help="expert stages (0: chapter 4 learning only)")
+    p.add_argument("--stages", default="0", help="expert stages after stage 0, or auto (default 0: chapter 4 learning only)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--size", type=int, default=64, help="Plym image side in pixels (default 64)")
     p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
     p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
-    p.add_argument("--max-cycles", type=int, default=50, help="give up a fold after this many cycles (default 50)")
+    p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
