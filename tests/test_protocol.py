@@ -8,6 +8,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from scipy import stats
 from pgmpy.readwrite import BIFReader
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -18,6 +19,7 @@ from ftorch.learner import DistinctiveFeatureLearner
 from training import run
 from training.datasets import Task, plym_task
 from training.protocol import Fold, next_target
+from training.report import seed_study
 
 CONFIG = {"task": "plym4", "seed": 0, "n_ex": 5, "n_fgen": 10}
 
@@ -30,11 +32,12 @@ def small_task() -> Task:
     return Task("plym4", *([getattr(full, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
 
 
-def make_fold(task: Task, folder, k: int = 1) -> Fold:
+def make_fold(task: Task, folder, k: int = 1, incremental: bool = False) -> Fold:
     space = FeatureSpace()
     train, test = task.fold(k)
     sets = [ImageSet([task.images[i] for i in idx], [{task.labels[i]} for i in idx], space) for idx in (train, test)]
-    return Fold(k, *sets, dict(CONFIG, classes=task.classes()), folder, task.classes(), progress=False)
+    return Fold(k, *sets, dict(CONFIG, classes=task.classes()), folder, task.classes(), progress=False,
+                incremental=incremental)
 
 
 def without_timing(data):
@@ -104,7 +107,8 @@ def test_damaged_foreign_and_mismatched_checkpoints_are_refused(small_task, tmp_
 
 
 def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys):
-    args = ["recognize", "--task", "plym", "--size", "40", "--folds", "1", "--seed", "3", "--device", "cpu", "--quiet"]
+    args = ["recognize", "--task", "plym", "--size", "40", "--folds", "1", "--seed", "3", "--device", "cpu", "--quiet",
+            "--stages", "2", "--max-cycles", "6"]
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 0
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     printed = capsys.readouterr().out
@@ -126,12 +130,30 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     bif = BIFReader(str(tmp_path / "a" / "fold1" / "networks" / "cube.bif")).get_model()
     assert bif.get_cpds("class").values[1] == pytest.approx(learner.networks["cube"].prior[1])
     assert len(bif.nodes()) == len(learner.networks["cube"].features) + 1
-    events = EventAccumulator(str(tmp_path / "a" / "tensorboard" / "fold1"))
+    assert "table 5.1 form" in markdown and "every stage" in markdown and "curves.png" in markdown
+    assert cv2.imread(str(tmp_path / "a" / "curves.png")) is not None
+    check_events(tmp_path / "a" / "tensorboard" / "fold1", a["folds"][0])
+
+
+def check_events(folder, fold: dict) -> None:
+    """Every documented TensorBoard tag is there, with the report's values at each stage."""
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0, "images": 0})
     events.Reload()
-    tags = events.Tags()["scalars"]
-    assert "test/accuracy" in tags and "train/mistakes_per_cycle" in tags
-    assert events.Scalars("test/accuracy")[0].value == pytest.approx(stage["test"]["accuracy"])
-    assert [e.value for e in events.Scalars("train/mistakes_per_cycle")] == stage["mistakes_per_cycle"]
+    tags = set(events.Tags()["scalars"])
+    stages = fold["stages"]
+    for block, keys in (("test", ("accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant")),
+                        ("features", ("bn", "different", "queried", "sampled"))):
+        for key in keys:
+            assert [e.value for e in events.Scalars(f"{block}/{key}")] == pytest.approx([s[block][key] for s in stages])
+            assert [e.step for e in events.Scalars(f"{block}/{key}")] == [s["step"] for s in stages]
+    for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned", "classes"):
+        assert [e.value for e in events.Scalars(f"stage/{key}")] == pytest.approx([float(s[key]) for s in stages])
+    mistakes = [m for s in stages for m in s["mistakes_per_cycle"]]
+    assert [e.value for e in events.Scalars("train/mistakes_per_cycle")] == mistakes
+    assert {"train/expert_per_cycle", "train/discarded_per_cycle", "train/features_per_cycle", "train/ksd_min"} <= tags
+    assert events.Scalars("hparam/accuracy")[0].value == pytest.approx(stages[-1]["test"]["accuracy"])
+    assert "_hparams_/session_start_info" in events.PluginTagToContent("hparams")
+    assert "features/features" in events.Tags()["images"]
 
 
 def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task, tmp_path, capsys):
@@ -192,3 +214,50 @@ def test_expert_stages_raise_the_target_and_test_after_each(small_task, tmp_path
     assert sum(stages[0]["expert_per_cycle"]) == 0  # t = 0: chapter 4 learning only
     for stage in stages:
         assert stage["target_met"] == (stage["train_learned"] and stage["ksd_min"] >= stage["t_ksd"])
+
+
+def test_incremental_fold_adds_one_class_at_a_time(small_task, tmp_path):
+    """Alg. 5.4: two classes first, then one more per phase, each phase alg. 5.3 from t = 0; tests
+    only on the classes taught; the learner is kept throughout."""
+    entry, learner = make_fold(small_task, tmp_path, incremental=True).run(max_cycles=3, stages=1)
+    stages, classes = entry["stages"], small_task.classes()
+    assert [s["classes"] for s in stages] == [2, 2, 3, 3, 4, 4]
+    assert [s["t_ksd"] for s in stages][::2] == [0.0, 0.0, 0.0] and [s["step"] for s in stages] == list(range(6))
+    assert stages[0]["presentations"] == stages[0]["cycles"] * 2 * 8  # 8 training views per class, 7 test views
+    for stage in stages:
+        rows = stage["confusion"]
+        assert list(rows) == classes[:stage["classes"]]
+        assert sum(sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"] for r in rows.values()) == 7 * stage["classes"]
+    assert [(a["classes"], a["class"]) for a in entry["added"]] == [(2, classes[1]), (3, classes[2]), (4, classes[3])]
+    assert sum(a["sampled"] for a in entry["added"]) == learner.sampled == stages[-1]["features"]["sampled"]
+    assert sorted(learner.networks) == sorted(classes)
+
+
+def test_seed_study_is_a_paired_one_tailed_t_test():
+    runs = [{"fold": 1, "stages": [{"test": {"accuracy": a}, "features": {"queried": 20.0 + a}},
+                                   {"test": {"accuracy": b}, "features": {"queried": 8.0 + b}}]}
+            for a, b in [(.6, .8), (.62, .75), (.55, .81), (.64, .7)]]
+    study = seed_study(runs, [0, 1, 2, 3])
+    d = np.array([.8 - .6, .75 - .62, .81 - .55, .7 - .64])
+    t = d.mean() / (d.std(ddof=1) / 2)
+    assert study["t"] == pytest.approx(t)
+    assert study["p"] == pytest.approx(stats.t.sf(t, 3))
+    assert study["novice"]["mean"] == pytest.approx(np.mean([.6, .62, .55, .64]))
+    assert study["expert"]["sd"] == pytest.approx(np.std([.8, .75, .81, .7], ddof=1))
+
+
+def test_seeds_and_incremental_commands(tmp_path, capsys):
+    common = ["--task", "plym", "--classes", "3", "--size", "32", "--folds", "1", "--device", "cpu", "--quiet",
+              "--max-cycles", "3"]
+    assert run.main(["recognize", *common, "--stages", "1", "--seeds", "2", "--out", str(tmp_path / "s")]) == 0
+    report = json.loads((tmp_path / "s" / "report.json").read_text())
+    assert report["seeds"]["seeds"] == [0, 1] and len(report["seeds"]["novice"]["values"]) == 2
+    assert report["seeds"]["novice"]["values"][0] == report["folds"][0]["stages"][0]["test"]["accuracy"]
+    assert (tmp_path / "s" / "seed1" / "fold1" / "learner.json").is_file()
+    assert "2 seeds, fold 1: novice accuracy" in capsys.readouterr().out
+    assert run.main(["incremental", *common, "--stages", "0", "--out", str(tmp_path / "i")]) == 0
+    report = json.loads((tmp_path / "i" / "report.json").read_text())
+    assert report["config"]["incremental"] and [s["classes"] for s in report["folds"][0]["stages"]] == [2, 3]
+    markdown = (tmp_path / "i" / "report.md").read_text()
+    assert "figure 5.13 form" in markdown and "incremental, alg. 5.4" in markdown
+    check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0])

@@ -89,17 +89,26 @@ def folder_task(root) -> Task:
     return Task("folder", images, labels, names, positions)
 
 
-def plym_task(size: int = 64, seed: int = 0) -> Task:
-    """The built-in Plym-like task: 8 rendered solids x 15 views (no files needed)."""
+def plym_task(size: int = 64, seed: int = 0, classes: int | None = None) -> Task:
+    """The built-in Plym-like task: the first ``classes`` (default all 8) rendered solids x 15 views
+    (no files needed)."""
     images, labels, names, positions = plym_images(size, seed)
-    return Task("plym", images, labels, names, positions)
+    task = Task("plym", images, labels, names, positions)
+    if classes is None:
+        return task
+    if not 2 <= classes <= len(task.classes()):
+        raise InputError(f"--classes {classes}: the Plym task has 2 to {len(task.classes())} classes")
+    keep = [i for i, label in enumerate(labels) if label in task.classes()[:classes]]
+    return Task("plym", *([getattr(task, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
 
 
-def load_task(name: str, data=None, classes: int = 6, views: int = 20, size: int = 64, seed: int = 0,
+def load_task(name: str, data=None, classes: int | None = None, views: int = 20, size: int = 64, seed: int = 0,
               first_view: int = 0) -> Task:
-    """The task named on the command line."""
+    """The task named on the command line; ``classes`` defaults to 6 for COIL and all 8 for Plym."""
     if name == "plym":
-        return plym_task(size, seed)
+        return plym_task(size, seed, classes)
+    if classes is None:
+        classes = 6
     if data is None:
         raise InputError(f"--task {name} needs --data DIR")
     if name == "coil":

@@ -10,6 +10,11 @@ target when the training set was learned and KSD_min(s) >= t(s). ``stages=None``
 runs until a stage at t = 1 is done or two stages in a row miss their target (at most
 ``AUTO_LIMIT`` stages). Example images for alg. 4.8 come from the training set.
 
+An incremental fold (alg. 5.4) teaches the classes in their listed order: it starts with the
+training images of the first two, runs alg. 5.3 to its end (at most ``INCREMENTAL_LIMIT`` expert
+stages), adds the next class's images and runs alg. 5.3 again from t = 0, keeping the learner.
+After each stage it tests on the test images of the classes taught so far.
+
 After every cycle the fold's state (learner, permutation generator, value cache, stages so
 far) is written to its checkpoint, so an interrupted fold resumes to exactly the result it
 would have reached.
@@ -35,6 +40,7 @@ OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
 FOLD_KIND = "fold"
 MISTAKES = ("reestimated", "learned", "failed")  # presentations whose first recognition was not correct
 AUTO_LIMIT = 12
+INCREMENTAL_LIMIT = 10  # expert stages per added class (alg. 5.4 step 2)
 
 
 def next_target(t: float, ksd_min: float) -> float:
@@ -95,6 +101,19 @@ class Fold:
     classes: list
     progress: bool = True
     logger: object = None
+    incremental: bool = False
+
+    def taught(self, phase: int) -> list:
+        """The classes trained on in ``phase``: all of them, or the first phase + 2 (alg. 5.4)."""
+        return self.classes[:phase + 2] if self.incremental else self.classes
+
+    @property
+    def phases(self) -> int:
+        return len(self.classes) - 1 if self.incremental else 1
+
+    def _indices(self, images: ImageSet, phase: int) -> list[int]:
+        taught = set(self.taught(phase))
+        return [i for i, labels in enumerate(images.labels) if labels <= taught]
 
     @property
     def checkpoint(self) -> Path:
@@ -124,26 +143,29 @@ class Fold:
 
     def run(self, max_cycles: int = 20, stages: int | None = 0, resume: bool = False,
             after_cycle=None) -> tuple[dict, DistinctiveFeatureLearner]:
-        """Train stages 0..``stages`` (None: auto) and test after each; returns the fold's report
-        entry and the learner (also saved as learner.json). ``after_cycle(n)`` is called after
-        the n-th cycle's checkpoint is written."""
+        """Train stages 0..``stages`` (None: auto; per added class in an incremental fold, at most
+        ``INCREMENTAL_LIMIT`` expert stages) and test after each; returns the fold's report entry
+        and the learner (also saved as learner.json). ``after_cycle(n)`` is called after the n-th
+        cycle's checkpoint is written."""
         seed = self.config["seed"] * 1000 + self.fold
         if resume and self.checkpoint.is_file():
             learner, order, state = self._resume()
         else:
             learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed)
             order = torch.Generator().manual_seed(seed)
-            state = {"stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
-                     "total_cycles": 0, "seconds": 0.0}
+            state = {"phase": 0, "stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
+                     "total_cycles": 0, "seconds": 0.0, "added": [], "sampled_before": 0}
         start = time.perf_counter() - state["seconds"]
         limit = AUTO_LIMIT if stages is None else stages + 1
+        if self.incremental:
+            limit = min(limit, INCREMENTAL_LIMIT + 1)
         with tqdm(desc=f"fold {self.fold}", unit="cycle", disable=not self.progress, leave=False) as bar:
             while not state["done"]:
                 cycles = state["cycles"]
                 if cycles and (cycles[-1]["mistakes"] == 0 or len(cycles) >= max_cycles):
                     self._finish_stage(learner, state, start, stages, limit)
                 else:
-                    cycles.append(self._cycle(learner, order, state["t_ksd"]))
+                    cycles.append(self._cycle(learner, order, state["t_ksd"], self._indices(self.train, state["phase"])))
                     state["total_cycles"] += 1
                     bar.update(1)
                     bar.set_postfix(stage=state["stage"], t_ksd=state["t_ksd"], mistakes=cycles[-1]["mistakes"],
@@ -154,13 +176,17 @@ class Fold:
                 if after_cycle is not None and not state["done"] and len(state["cycles"]):
                     after_cycle(state["total_cycles"])
         learner.save(self.folder / "learner.json")
-        return {"fold": self.fold, "stages": state["stages"]}, learner
+        entry = {"fold": self.fold, "stages": state["stages"]}
+        if self.incremental:
+            entry["added"] = state["added"]
+        return entry, learner
 
-    def _cycle(self, learner: DistinctiveFeatureLearner, order: torch.Generator, t_ksd: float) -> dict:
-        """One pass over the training set in a fresh order, then discarding (alg. 5.3 step 2)."""
+    def _cycle(self, learner: DistinctiveFeatureLearner, order: torch.Generator, t_ksd: float, indices: list[int]) -> dict:
+        """One pass over the training images ``indices`` in a fresh order, then discarding (alg. 5.3 step 2)."""
         begin = learner.presentations
         results, ksd_min = [], 1.0
-        for i in torch.randperm(len(self.train), generator=order).tolist():
+        for k in torch.randperm(len(indices), generator=order).tolist():
+            i = indices[k]
             p = learner.learn(self.train, i, t_ksd)
             results.append(p.result)
             if p.ksd is not None:
@@ -171,28 +197,48 @@ class Fold:
                 "features": sum(len(n.features) for n in learner.networks.values())}
 
     def _finish_stage(self, learner, state: dict, start: float, stages: int | None, limit: int) -> None:
-        cycles, t = state["cycles"], state["t_ksd"]
+        cycles, t, taught = state["cycles"], state["t_ksd"], self.taught(state["phase"])
         learned = cycles[-1]["mistakes"] == 0
         ksd_min = cycles[-1]["ksd_min"]
         met = learned and ksd_min >= t
-        recognitions = learner.recognize_many(self.test, range(len(self.test)))
-        stage = {"stage": state["stage"], "t_ksd": t, "cycles": len(cycles), "presentations": learner.presentations,
+        tested = self._indices(self.test, state["phase"])
+        recognitions = learner.recognize_many(self.test, tested)
+        labels = [self.test.labels[i] for i in tested]
+        stage = {"stage": state["stage"], "step": len(state["stages"]), "classes": len(taught), "t_ksd": t,
+                 "cycles": len(cycles), "presentations": learner.presentations,
                  "train_learned": learned, "ksd_min": ksd_min, "target_met": met,
                  "mistakes_per_cycle": [c["mistakes"] for c in cycles],
                  "expert_per_cycle": [c["expert"] for c in cycles],
                  "discarded_per_cycle": [c["discarded"] for c in cycles],
-                 "test": test_block(recognitions, self.test.labels, self.classes),
+                 "test": test_block(recognitions, labels, taught),
                  "features": feature_block(learner, recognitions),
-                 "confusion": confusion(recognitions, self.test.labels, self.classes, learner.networks),
+                 "confusion": confusion(recognitions, labels, taught, learner.networks),
                  "seconds": time.perf_counter() - start}
         state["stages"].append(stage)
         self._log_stage(stage)
         state["misses"] = 0 if met else state["misses"] + 1
-        finished_auto = stages is None and (t >= 1.0 or state["misses"] >= 2)
-        state["done"] = finished_auto or len(state["stages"]) >= limit
+        in_phase = state["stage"] + 1
+        phase_done = (stages is None and (t >= 1.0 or state["misses"] >= 2)) or in_phase >= limit
         state["stage"] += 1
         state["t_ksd"] = next_target(t, ksd_min)
         state["cycles"] = []
+        if phase_done and self.incremental:
+            self._class_added(learner, state)
+        if phase_done and state["phase"] + 1 < self.phases:
+            state.update(phase=state["phase"] + 1, stage=0, t_ksd=0.0, misses=0)
+        else:
+            state["done"] = phase_done
+
+    def _class_added(self, learner, state: dict) -> None:
+        """Figure 5.13: features sampled and stages taken to learn the newest class (both first classes at phase 0)."""
+        taught = self.taught(state["phase"])
+        entry = {"classes": len(taught), "class": taught[-1], "sampled": learner.sampled - state["sampled_before"],
+                 "stages": state["stage"]}
+        state["added"].append(entry)
+        state["sampled_before"] = learner.sampled
+        if self.logger is not None:
+            self.logger.add_scalar("incremental/sampled_for_class", entry["sampled"], entry["classes"])
+            self.logger.add_scalar("incremental/stages_for_class", entry["stages"], entry["classes"])
 
     def _log_cycle(self, step: int, cycle: dict) -> None:
         if self.logger is not None:
@@ -200,12 +246,13 @@ class Fold:
                 self.logger.add_scalar(f"train/{key}_per_cycle" if key != "ksd_min" else "train/ksd_min", cycle[key], step)
 
     def _log_stage(self, stage: dict) -> None:
+        """Per stage, against the stage's running number in the fold (figures 5.1, 5.11)."""
         if self.logger is None:
             return
-        s = stage["stage"]
+        step = stage["step"]
         for key, value in stage["test"].items():
-            self.logger.add_scalar(f"test/{key}", value, s)
+            self.logger.add_scalar(f"test/{key}", value, step)
         for key, value in stage["features"].items():
-            self.logger.add_scalar(f"features/{key}", value, s)
-        for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned"):
-            self.logger.add_scalar(f"stage/{key}", float(stage[key]), s)
+            self.logger.add_scalar(f"features/{key}", value, step)
+        for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned", "classes"):
+            self.logger.add_scalar(f"stage/{key}", float(stage[key]), step)

@@ -1,10 +1,13 @@
-"""Reports of a recognition run: report.json and report.md with tables in the form of 4.2, 4.3 and 4.4."""
+"""Reports of a recognition run: report.json and report.md with tables in the form of 4.2-4.4
+(stage 0) and 5.1-5.3 (after expert learning), every stage, incremental tasks and seed studies."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from .protocol import OUTCOMES
 
@@ -15,6 +18,24 @@ THESIS_TABLE_4_2 = {  # average rows of table 4.2 (stage 0), for comparison
              "bn": 85, "different": 57, "queried": 27.1, "sampled": 998, "cycles": 8, "presentations": 480},
 }
 
+THESIS_TABLE_5_1 = {  # average rows of table 5.1 (after expert learning); "-inc6" etc. are the incremental tasks
+    "coil": {"accuracy": .82, "correct": .74, "wrong": .03, "ambiguous": .13, "confused": 0.0, "ignorant": .10,
+             "bn": 17, "different": 13, "queried": 8.8, "sampled": 19326, "cycles": 64, "presentations": 3840},
+    "coil-inc6": {"accuracy": .87, "correct": .81, "wrong": .01, "ambiguous": .11, "confused": 0.0, "ignorant": .08,
+                  "bn": 9, "different": 9, "queried": 6.0, "sampled": 15679, "cycles": math.nan, "presentations": 8925},
+    "coil-inc10": {"accuracy": .81, "correct": .75, "wrong": .01, "ambiguous": .09, "confused": .01, "ignorant": .15,
+                   "bn": 31, "different": 19, "queried": 12.7, "sampled": 78723, "cycles": math.nan, "presentations": 50290},
+    "plym": {"accuracy": .75, "correct": .67, "wrong": .05, "ambiguous": .15, "confused": 0.0, "ignorant": .13,
+             "bn": 17, "different": 14, "queried": 8.7, "sampled": 29612, "cycles": 139, "presentations": 8244},
+    "plym-inc8": {"accuracy": .80, "correct": .76, "wrong": .02, "ambiguous": .07, "confused": 0.0, "ignorant": .16,
+                  "bn": 19, "different": 11, "queried": 7.9, "sampled": 49631, "cycles": math.nan, "presentations": 25957},
+}
+
+
+def thesis_key(report: dict) -> str:
+    """Key of the thesis's row for this run in THESIS_TABLE_5_1."""
+    return f"{report['task']}-inc{len(report['classes'])}" if report["config"].get("incremental") else report["task"]
+
 
 def average(folds: list[dict], which: int) -> dict:
     """Mean over folds of the ``test`` and ``features`` blocks of stage ``which`` (0 = first, -1 = last)."""
@@ -23,10 +44,29 @@ def average(folds: list[dict], which: int) -> dict:
             for block in ("test", "features")}
 
 
-def build_report(config: dict, device: str, seconds: float, folds: list[dict]) -> dict:
-    return {"task": config["task"], "classes": config["classes"], "seed": config["seed"], "device": device,
-            "seconds": seconds, "config": config, "folds": folds,
-            "average": {"stage0": average(folds, 0), "final": average(folds, -1)}}
+def build_report(config: dict, device: str, seconds: float, folds: list[dict], seeds: dict | None = None) -> dict:
+    report = {"task": config["task"], "classes": config["classes"], "seed": config["seed"], "device": device,
+              "seconds": seconds, "config": config, "folds": folds,
+              "average": {"stage0": average(folds, 0), "final": average(folds, -1)}}
+    if seeds is not None:
+        report["seeds"] = seeds
+    return report
+
+
+def seed_study(runs: list[dict], seeds: list[int]) -> dict:
+    """Figure 5.5: novice (stage 0) vs expert (final stage) test accuracy and features queried of one
+    fold trained with several seeds; a paired one-tailed t-test of expert > novice accuracy."""
+    novice = np.array([r["stages"][0]["test"]["accuracy"] for r in runs])
+    expert = np.array([r["stages"][-1]["test"]["accuracy"] for r in runs])
+    test = stats.ttest_rel(expert, novice, alternative="greater")
+
+    def spread(values) -> dict:
+        return {"values": [float(v) for v in values], "mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1))}
+
+    return {"seeds": seeds, "fold": runs[0]["fold"], "novice": spread(novice), "expert": spread(expert),
+            "novice_queried": spread([r["stages"][0]["features"]["queried"] for r in runs]),
+            "expert_queried": spread([r["stages"][-1]["features"]["queried"] for r in runs]),
+            "t": float(test.statistic), "p": float(test.pvalue)}
 
 
 def write_json(path: Path, report: dict) -> None:
@@ -57,9 +97,38 @@ def summary_table(report: dict, which: int = 0) -> list[str]:
     avg = report["average"]["stage0" if which == 0 else "final"]
     rows.append(_summary_row(report["task"], n, "avg.", avg["test"], avg["features"],
                              np.mean([s["cycles"] for s in stages]), np.mean([s["presentations"] for s in stages])))
-    thesis = THESIS_TABLE_4_2.get(report["task"])
-    if thesis and which == 0:
+    thesis = THESIS_TABLE_4_2.get(report["task"]) if which == 0 else THESIS_TABLE_5_1.get(thesis_key(report))
+    if thesis and not (which == 0 and report["config"].get("incremental")):
         rows.append(_summary_row(f"{report['task']} (thesis)", n, "avg.", thesis, thesis, thesis["cycles"], thesis["presentations"]))
+    return head + rows
+
+
+def stage_table(fold: dict) -> list[str]:
+    """Every stage of a fold (the data of figures 5.1 and 5.11): t_KSD (bold where met), KSD_min,
+    test results and feature counts."""
+    head = ["| stage | classes | t_KSD | KSD_min | cycles | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd |",
+            "|---" * 15 + "|"]
+    rows = []
+    for s in fold["stages"]:
+        t = f"{s['t_ksd']:.3f}"
+        cells = [str(s["stage"]), str(s["classes"]), f"**{t}**" if s["target_met"] else t, f"{s['ksd_min']:.3f}",
+                 str(s["cycles"]), _p(s["test"]["accuracy"]), *(_p(s["test"][k]) for k in OUTCOMES),
+                 str(s["features"]["bn"]), str(s["features"]["different"]), f"{s['features']['queried']:.1f}",
+                 str(s["features"]["sampled"])]
+        rows.append("| " + " | ".join(cells) + " |")
+    return head + rows
+
+
+def added_table(folds: list[dict]) -> list[str]:
+    """Figure 5.13's data: features sampled and stages taken while each class was added."""
+    head = ["| classes | class | " + " | ".join(f"fold {f['fold']} sp'd | fold {f['fold']} stages" for f in folds) + " |",
+            "|---" * (2 + 2 * len(folds)) + "|"]
+    rows = []
+    for n, first in enumerate(folds[0]["added"]):
+        cells = [str(first["classes"]), str(first["class"])]
+        for f in folds:
+            cells += [str(f["added"][n]["sampled"]), str(f["added"][n]["stages"])]
+        rows.append("| " + " | ".join(cells) + " |")
     return head + rows
 
 
@@ -108,19 +177,46 @@ def averaged_rows(folds: list[dict], classes: list, which: int) -> dict:
     return out
 
 
+def _confusion_sections(report: dict, which: int, table: str) -> list[str]:
+    classes, lines = report["classes"], []
+    for f in report["folds"]:
+        stage = f["stages"][which]
+        taught = [c for c in classes if c in stage["confusion"]]
+        lines += [f"### Fold {f['fold']}: confusion (table {table[0]} form)", "", *confusion_table(stage["confusion"], taught), "",
+                  f"### Fold {f['fold']}: ambiguous recognitions (table {table[1]} form)", "",
+                  *ambiguity_table(stage["confusion"], taught), ""]
+    if len(report["folds"]) > 1:
+        lines += ["### Average of the folds (proportions)", "",
+                  *confusion_table(averaged_rows(report["folds"], classes, which), classes, proportions=True), ""]
+    return lines
+
+
 def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     classes = report["classes"]
-    lines = [f"# Recognition report: {report['task']}", "",
-             f"{len(classes)} classes, seed {report['seed']}, device {report['device']}, {report['seconds']:.1f} s.", "",
-             "## Summary (table 4.2 form)", "", *summary_table(report), ""]
-    for f in report["folds"]:
-        stage = f["stages"][0]
-        lines += [f"## Fold {f['fold']}: confusion (table 4.3 form)", "", *confusion_table(stage["confusion"], classes), "",
-                  f"### Fold {f['fold']}: ambiguous recognitions (table 4.4 form)", "",
-                  *ambiguity_table(stage["confusion"], classes), ""]
-    if len(report["folds"]) > 1:
-        lines += ["## Average of the folds (proportions, table 4.3 form)", "",
-                  *confusion_table(averaged_rows(report["folds"], classes, 0), classes, proportions=True), ""]
+    incremental = report["config"].get("incremental")
+    lines = [f"# Recognition report: {report['task']}{' (incremental, alg. 5.4)' if incremental else ''}", "",
+             f"{len(classes)} classes, seed {report['seed']}, device {report['device']}, {report['seconds']:.1f} s.", ""]
+    expert = any(len(f["stages"]) > 1 for f in report["folds"])
+    if not incremental:
+        lines += ["## Novices: after stage 0 (table 4.2 form)", "", *summary_table(report, 0), "",
+                  *_confusion_sections(report, 0, ("4.3", "4.4"))]
+    if expert or incremental:
+        lines += ["## After expert learning: final stage (table 5.1 form)", "", *summary_table(report, -1), "",
+                  *_confusion_sections(report, -1, ("5.2", "5.3"))]
+        for f in report["folds"]:
+            lines += [f"## Fold {f['fold']}: every stage (t_KSD in bold where the target was met)", "", *stage_table(f), ""]
+    if incremental:
+        lines += ["## Features sampled per added class (figure 5.13 form)", "", *added_table(report["folds"]), ""]
+    if "seeds" in report:
+        s = report["seeds"]
+        lines += [f"## Seeds (figure 5.5 form): fold {s['fold']}, seeds {s['seeds'][0]}-{s['seeds'][-1]}", "",
+                  "| | novice | expert |", "|---|---|---|",
+                  f"| accuracy, mean +- sd | {s['novice']['mean']:.3f} +- {s['novice']['sd']:.3f} | "
+                  f"{s['expert']['mean']:.3f} +- {s['expert']['sd']:.3f} |",
+                  f"| features queried, mean +- sd | {s['novice_queried']['mean']:.1f} +- {s['novice_queried']['sd']:.1f} | "
+                  f"{s['expert_queried']['mean']:.1f} +- {s['expert_queried']['sd']:.1f} |", "",
+                  f"Paired one-tailed t-test, expert > novice: t = {s['t']:.2f}, p = {s['p']:.2g}.", ""]
     if figures:
-        lines += ["## Learned features (figures 4.7 and 4.8 form)", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
+        lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
+                  "(figure 5.1 form).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
     path.write_text("\n".join(lines))

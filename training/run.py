@@ -5,6 +5,8 @@ Commands:
                                validation) in training stages (alg. 5.3): report.json,
                                report.md, feature figures, TensorBoard logs and a resumable
                                checkpoint per fold.
+  incremental --task coil --classes 10 ...   the incremental task of alg. 5.4: classes added
+                               one at a time, each trained in stages; same outputs.
   evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
@@ -31,7 +33,8 @@ from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
 from training.protocol import Fold, confusion, feature_block, test_block
-from training.report import ambiguity_table, build_report, confusion_table, write_json, write_markdown
+from training.curves import write_curves
+from training.report import ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
 
 
 def salient(args) -> int:
@@ -67,10 +70,11 @@ def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bo
                     names=[task.names[i] for i in indices], progress=progress)
 
 
-def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: Path) -> list[Path]:
-    """Figure 4.7 (each class's features present in its middle training view) and figure 4.8
-    (the first class's features in every training view of it where they are present)."""
-    figures, panels = [], []
+def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet) -> list[tuple[str, np.ndarray]]:
+    """Figure 4.7 / 5.2 ("features": each class's features present in its middle training view)
+    and figure 4.8 ("<class>_features": the first class's features in every training view of it
+    where they are present), as (name, RGB uint8 picture)."""
+    pictures, panels = [], []
 
     def present(label, image: int) -> tuple[list, list[int]]:
         net = learner.networks[label]
@@ -87,66 +91,115 @@ def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: P
             panels.append(titled(draw_features(env.all_records, middle, env.images[middle], features, ids),
                                  f"{label}: {len(features)} of {len(learner.networks[label].features)}"))
     if panels:
-        figures.append(folder / "features.png")
-        save_rgb(figures[-1], grid(panels, min(4, len(panels))))
+        pictures.append(("features", grid(panels, min(4, len(panels)))))
     if classes:
         first = classes[0]
         views = [i for i, labels in enumerate(env.labels) if first in labels]
-        pictures = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in views]
-        figures.append(folder / f"{first}_features.png")
-        save_rgb(figures[-1], grid(pictures, min(5, len(pictures))))
-    return figures
+        drawn = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in views]
+        pictures.append((f"{first}_features", grid(drawn, min(5, len(drawn)))))
+    return pictures
 
 
-def recognize_command(args) -> int:
+def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: Path) -> list[Path]:
+    """The pictures of :func:`feature_pictures` as PNG files in ``folder``."""
+    paths = []
+    for name, picture in feature_pictures(learner, env):
+        paths.append(folder / f"{name}.png")
+        save_rgb(paths[-1], picture)
+    return paths
+
+
+def _stages(text: str) -> int | None:
+    if text == "auto":
+        return None
+    if text.isdigit():
+        return int(text)
+    raise InputError(f"--stages {text!r}: expected a number of expert stages (0, 1, ...) or auto")
+
+
+def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
+                incremental: bool) -> tuple[dict, Fold, DistinctiveFeatureLearner]:
+    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    config = run_config(args, task, seed, incremental)
+    train, test = task.fold(k)
+    progress = not args.quiet
+    with SummaryWriter(str(logdir / f"fold{k}")) as writer:
+        fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
+                    out / f"fold{k}", task.classes(), progress, writer, incremental)
+        entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
+        log_run(writer, config, entry, learner, fold)
+    return entry, fold, learner
+
+
+def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
+    return {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
+            "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": seed,
+            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(resolve_device(args.device)), "stages": args.stages,
+            "max_cycles": args.max_cycles, "incremental": incremental}
+
+
+def log_run(writer, config: dict, entry: dict, learner: DistinctiveFeatureLearner, fold: Fold) -> None:
+    """Hyper-parameters with the final results (add_hparams, in the fold's own run) and the
+    learned features as images (figure 5.2)."""
+    final = entry["stages"][-1]
+    hparams = {k: v for k, v in config.items() if isinstance(v, (int, float, str, bool))}
+    metrics = {"hparam/accuracy": final["test"]["accuracy"], "hparam/correct": final["test"]["correct"],
+               "hparam/features": final["features"]["bn"], "hparam/queried": final["features"]["queried"],
+               "hparam/stages": len(entry["stages"])}
+    writer.add_hparams(hparams, metrics, run_name=".", global_step=final["step"])
+    for name, picture in feature_pictures(learner, fold.train):
+        writer.add_image(f"features/{name}", picture, final["step"], dataformats="HWC")
+
+
+def recognize_command(args, incremental: bool = False) -> int:
     device = resolve_device(args.device)
-    if args.stages == "auto":
-        stages = None
-    elif args.stages.isdigit():
-        stages = int(args.stages)
-    else:
-        raise InputError(f"--stages {args.stages!r}: expected a number of expert stages (0, 1, ...) or auto")
+    _stages(args.stages)
     if args.folds not in (1, 2):
         raise InputError(f"--folds {args.folds}: expected 1 or 2")
     if args.max_cycles < 1:
         raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
+    if args.seeds < 1:
+        raise InputError(f"--seeds {args.seeds}: expected at least 1")
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen)  # refuses bad parameters before any work is done
     start = time.perf_counter()
     torch.manual_seed(args.seed)
     task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
-    out = Path(args.out or f"runs/{task.name}")
+    name = f"{task.name}-inc" if incremental else task.name
+    out = Path(args.out or f"runs/{name}")
     logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
-    config = {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
-              "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": args.seed,
-              "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(device), "stages": args.stages,
-              "max_cycles": args.max_cycles}
     space = FeatureSpace().to(device)
-    progress = not args.quiet
     folds, figures = [], []
-    from torch.utils.tensorboard import SummaryWriter
-
     for k in range(1, args.folds + 1):
-        train, test = task.fold(k)
-        with SummaryWriter(str(logdir / f"fold{k}")) as writer:
-            fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
-                        out / f"fold{k}", task.classes(), progress, writer)
-            entry, learner = fold.run(args.max_cycles, stages, resume=args.resume)
+        entry, fold, learner = _train_fold(args, task, k, args.seed, space, out, logdir, incremental)
         folds.append(entry)
         figures += [str(p.relative_to(out)) for p in feature_figures(learner, fold.train, fold.folder)]
         (fold.folder / "networks").mkdir(exist_ok=True)
         for label, net in learner.networks.items():
             (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
         for stage in entry["stages"]:
-            print(f"fold {k} stage {stage['stage']} (t_KSD {stage['t_ksd']:.3f}{', met' if stage['target_met'] else ''}): "
+            taught = f", {stage['classes']} classes" if incremental else ""
+            print(f"fold {k} stage {stage['stage']}{taught} "
+                  f"(t_KSD {stage['t_ksd']:.3f}{', met' if stage['target_met'] else ''}): "
                   f"accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
                   f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
+    seeds = None
+    if args.seeds > 1:
+        runs = [folds[0]] + [_train_fold(args, task, 1, args.seed + n, space, out / f"seed{args.seed + n}",
+                                         logdir / f"seed{args.seed + n}", incremental)[0] for n in range(1, args.seeds)]
+        seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
     seconds = time.perf_counter() - start
-    report = build_report(config, str(device), seconds, folds)
+    report = build_report(run_config(args, task, args.seed, incremental), str(device), seconds, folds, seeds)
     write_json(out / "report.json", report)
+    figures.append(str(write_curves(out, report).relative_to(out)))
     write_markdown(out / "report.md", report, figures)
     avg = report["average"]["final"]
     print(f"average: accuracy {avg['test']['accuracy']:.2f}, correct {avg['test']['correct']:.2f}, "
           f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
+    if seeds:
+        print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
+              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, one-tailed paired t-test p = {seeds['p']:.2g}")
     print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
     return 0
 
@@ -182,29 +235,39 @@ def evaluate_command(args) -> int:
 def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
-    p.add_argument("--classes", type=int, default=6, help="COIL objects 1..N (default 6)")
+    p.add_argument("--classes", type=int, help="the first N classes: COIL objects 1..N (default 6), Plym solids (default all 8)")
     p.add_argument("--views", type=int, default=20, help="consecutive COIL views per object (default 20)")
     p.add_argument("--first-view", type=int, default=0, help="first COIL view (default 0)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def parser() -> argparse.ArgumentParser:
-    top = argparse.ArgumentParser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
-    commands = top.add_subparsers(dest="command")
-    p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
-    _task_options(p, ("plym", "coil", "folder"), "plym")
+def _training_options(p: argparse.ArgumentParser, default: str) -> None:
+    _task_options(p, ("plym", "coil", "folder"), default)
     p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
-    p.add_argument("--stages", default="0", help="expert stages after stage 0, or auto (default 0: chapter 4 learning only)")
+    p.add_argument("--stages", default="auto", help="expert stages after stage 0 (0: chapter 4 learning only), "
+                   "or auto: until t_KSD = 1 or two stages in a row miss their target (default auto)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--seeds", type=int, default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
+                   "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
     p.add_argument("--size", type=int, default=64, help="Plym image side in pixels (default 64)")
     p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
     p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
     p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
-    p.add_argument("--out", help="run folder (default runs/TASK)")
+    p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
+    commands = top.add_subparsers(dest="command")
+    p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
+    _training_options(p, "plym")
     p.set_defaults(run=recognize_command)
+    p = commands.add_parser("incremental", help="incremental task (alg. 5.4): classes added one at a time")
+    _training_options(p, "coil")
+    p.set_defaults(run=lambda args: recognize_command(args, incremental=True))
     p = commands.add_parser("evaluate", help="recognize another image set with a saved learner")
     p.add_argument("--checkpoint", required=True, help="a learner.json written by recognize")
     _task_options(p, ("coil", "folder"), "coil")
