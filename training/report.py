@@ -81,25 +81,29 @@ def _p(value: float) -> str:
 def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
     cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in OUTCOMES),
              f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
-             f"{features['sampled']:.0f}", f"{cycles:.0f}", f"{presentations:.0f}"]
+             f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}"]
     return "| " + " | ".join(cells) + " |"
 
 
 def summary_table(report: dict, which: int = 0) -> list[str]:
-    """Table 4.2: accuracy, outcome proportions, feature counts, cycles and presentations per fold."""
+    """Table 4.2 (``which`` = 0) or 5.1 (-1): accuracy, outcome proportions, feature counts, cycles
+    and presentations so far, per fold and averaged, with the thesis's average row."""
     head = ["| task | cls. | fold | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     rows, n = [], len(report["classes"])
+    task = f"{report['task']}-inc" if report["config"].get("incremental") else report["task"]
+    cycles = []  # all cycles up to and including the stage, as table 5.1 counts them
     for f in report["folds"]:
         s = f["stages"][which]
-        rows.append(_summary_row(report["task"], n, f["fold"], s["test"], s["features"], s["cycles"], s["presentations"]))
+        cycles.append(sum(t["cycles"] for t in f["stages"][:len(f["stages"]) + which + 1 if which < 0 else which + 1]))
+        rows.append(_summary_row(task, n, f["fold"], s["test"], s["features"], cycles[-1], s["presentations"]))
     stages = [f["stages"][which] for f in report["folds"]]
     avg = report["average"]["stage0" if which == 0 else "final"]
-    rows.append(_summary_row(report["task"], n, "avg.", avg["test"], avg["features"],
-                             np.mean([s["cycles"] for s in stages]), np.mean([s["presentations"] for s in stages])))
+    rows.append(_summary_row(task, n, "avg.", avg["test"], avg["features"],
+                             np.mean(cycles), np.mean([s["presentations"] for s in stages])))
     thesis = THESIS_TABLE_4_2.get(report["task"]) if which == 0 else THESIS_TABLE_5_1.get(thesis_key(report))
     if thesis and not (which == 0 and report["config"].get("incremental")):
-        rows.append(_summary_row(f"{report['task']} (thesis)", n, "avg.", thesis, thesis, thesis["cycles"], thesis["presentations"]))
+        rows.append(_summary_row(f"{task} (thesis)", n, "avg.", thesis, thesis, thesis["cycles"], thesis["presentations"]))
     return head + rows
 
 
