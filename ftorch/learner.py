@@ -70,14 +70,19 @@ class DistinctiveFeatureLearner:
     """Learns class networks of distinctive features from labelled images, one at a time.
 
     ``learn(env, i)`` presents image i of an :class:`ImageSet` with its true classes;
+    ``min_information`` (bits) is the stopping threshold that 4.4.2 offers for alg. 4.4: recognition
+    stops once no unqueried feature has I(C, F) above it (0: stop only at I_max = 0, as printed);
     ``recognize``/``recognize_many`` recognize images of any image set; ``save``/``load``
     write and read the whole state (networks, instance list, usage, random state) exactly.
     """
 
-    def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0):
+    def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0):
         if int(n_ex) < 1 or int(n_fgen) < 1:
             raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
+        if not 0.0 <= min_information < 1.0:
+            raise InputError(f"min_information must lie in [0, 1) bits, got {min_information}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
+        self.min_information = float(min_information)
         self.generator = torch.Generator().manual_seed(int(seed))
         self.networks: dict[Hashable, ClassNetwork] = {}
         self.discriminates: dict[tuple, frozenset] = {}
@@ -113,7 +118,7 @@ class DistinctiveFeatureLearner:
         out = []
         for k in range(len(images)):
             column = dict(zip(features, table[:, k].tolist()))
-            out.append(recognize(self.networks, column.__getitem__))
+            out.append(recognize(self.networks, column.__getitem__, max(self.min_information, 1e-12)))
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
@@ -367,7 +372,7 @@ class DistinctiveFeatureLearner:
         } for label, net in self.networks.items()]
         instances = self.instances
         return {
-            "n_ex": self.n_ex, "n_fgen": self.n_fgen, "presentations": self.presentations, "sampled": self.sampled,
+            "n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information, "presentations": self.presentations, "sampled": self.sampled,
             "generator": encode_array(self.generator.get_state().numpy().astype(np.float64)),
             "features": [f.to_dict() for f in features], "networks": networks,
             "discriminates": [[_label(c), index[f], sorted(map(_label, d), key=str)] for (c, f), d in self.discriminates.items()],
@@ -382,6 +387,7 @@ class DistinctiveFeatureLearner:
         """Restore a state written by :meth:`state_dict`; ValueError or InputError where it is damaged."""
         features = [Feature.from_dict(d) for d in state["features"]]
         self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
+        self.min_information = float(state["min_information"])
         self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
         generator_state = decode_array(state["generator"]).astype(np.uint8)
         self.generator = torch.Generator()

@@ -195,3 +195,24 @@ def test_expert_features_meet_the_ksd_target(shapes):
     assert accepted > 0
     with pytest.raises(InputError, match="t_ksd"):
         learner.learn(shapes, 0, t_ksd=1.5)
+
+
+@pytest.mark.parametrize("bits", [0.05, 0.2, 0.6])
+def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
+    """The 4.4.2 stopping threshold: recognition queries a prefix of what alg. 4.4 would query, and
+    stops where no unqueried feature has more than ``bits`` of information with any class."""
+    learner, _ = train(shapes, seed=0)
+    for image in range(18, 30):
+        learner.min_information = 0.0
+        full = learner.recognize(shapes, image)
+        learner.min_information = bits
+        short = learner.recognize(shapes, image)
+        assert short.queried == full.queried[:len(short.queried)]
+        states = {label: net.state({f: int(short.values[f] > net.threshold[f]) for f in short.queried if f in net})
+                  for label, net in learner.networks.items()}
+        remaining = [info for label, net in learner.networks.items() for f, info in
+                     zip(net.features, net.evaluate(states[label])[1]) if f not in short.values]
+        assert max(remaining, default=0.0) <= bits
+    with pytest.raises(InputError, match="min_information"):
+        DistinctiveFeatureLearner(min_information=1.5)
+    assert DistinctiveFeatureLearner(min_information=0.25).state_dict()["min_information"] == 0.25

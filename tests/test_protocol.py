@@ -108,7 +108,7 @@ def test_damaged_foreign_and_mismatched_checkpoints_are_refused(small_task, tmp_
 
 def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys):
     args = ["recognize", "--task", "plym", "--size", "40", "--folds", "1", "--seed", "3", "--device", "cpu", "--quiet",
-            "--stages", "2", "--max-cycles", "6"]
+            "--stages", "2", "--max-cycles", "6", "--min-information", "0"]
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 0
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     printed = capsys.readouterr().out
@@ -248,7 +248,7 @@ def test_seed_study_is_a_paired_one_tailed_t_test():
 
 def test_seeds_and_incremental_commands(tmp_path, capsys):
     common = ["--task", "plym", "--classes", "3", "--size", "32", "--folds", "1", "--device", "cpu", "--quiet",
-              "--max-cycles", "3"]
+              "--max-cycles", "3", "--min-information", "0"]
     assert run.main(["recognize", *common, "--stages", "1", "--seeds", "2", "--out", str(tmp_path / "s")]) == 0
     report = json.loads((tmp_path / "s" / "report.json").read_text())
     assert report["seeds"]["seeds"] == [0, 1] and len(report["seeds"]["novice"]["values"]) == 2

@@ -151,7 +151,8 @@ class Fold:
         if resume and self.checkpoint.is_file():
             learner, order, state = self._resume()
         else:
-            learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed)
+            learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed,
+                                                min_information=self.config.get("min_information", 0.0))
             order = torch.Generator().manual_seed(seed)
             state = {"phase": 0, "stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
                      "total_cycles": 0, "seconds": 0.0, "added": [], "sampled_before": 0}

@@ -109,6 +109,9 @@ def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: P
     return paths
 
 
+MIN_INFORMATION = 0.1  # bits; see the README's chapter 5 decisions
+
+
 def _stages(text: str) -> int | None:
     if text == "auto":
         return None
@@ -136,7 +139,7 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
 def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
     return {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
             "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": seed,
-            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "device": str(resolve_device(args.device)), "stages": args.stages,
+            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information, "device": str(resolve_device(args.device)), "stages": args.stages,
             "max_cycles": args.max_cycles, "incremental": incremental}
 
 
@@ -162,7 +165,7 @@ def recognize_command(args, incremental: bool = False) -> int:
         raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
     if args.seeds < 1:
         raise InputError(f"--seeds {args.seeds}: expected at least 1")
-    DistinctiveFeatureLearner(args.n_ex, args.n_fgen)  # refuses bad parameters before any work is done
+    DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information)  # refuses bad parameters early
     start = time.perf_counter()
     torch.manual_seed(args.seed)
     task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
@@ -253,6 +256,9 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--size", type=int, default=64, help="Plym image side in pixels (default 64)")
     p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
     p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
+    p.add_argument("--min-information", type=float, default=MIN_INFORMATION, metavar="BITS",
+                   help=f"stop a recognition once no unqueried feature has more mutual information with a class "
+                        f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
     p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
