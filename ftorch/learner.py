@@ -21,8 +21,9 @@ Decisions the text leaves open:
 - Alg. 5.1 calls alg. 4.10 "until" a candidate reaches t_KSD; here one presentation tries each
   method's n_fgen candidates once (bounded work); the next presentation of the image tries again.
   An expert feature is accepted when it reaches t_KSD and the image is still recognized correctly.
-- KSD_{c,d}(f) of alg. 5.2 is the distinctive power of f between instances of c and instances
-  of d that are not of c; a class with no consulted feature of its own scores 0 against every d.
+- KSD_{c,d}(f) of alg. 5.2 is the distinctive power of node f at the cut-point it has in c's
+  network, between instances of c and instances of d that are not of c (``ksd.distinctive_at``);
+  a class with no consulted feature of its own scores 0 against every d.
 """
 from __future__ import annotations
 
@@ -212,16 +213,13 @@ class DistinctiveFeatureLearner:
             net = self.networks[c]
             consulted = [f for f in net.features if f in rec.values]
             present = torch.from_numpy(self.instances.has(c))
-            scores = []
             if consulted:
                 values = torch.from_numpy(np.stack([self.instances.values(f) for f in consulted]))
                 cuts = torch.tensor([net.threshold[f] for f in consulted], dtype=torch.float64)
-            for d in others:
-                if consulted:
-                    power = distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present)
-                    scores.append(float(power.max()))
-                else:
-                    scores.append(0.0)
+                scores = [float(distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present).max())
+                          for d in others]
+            else:
+                scores = [0.0] * len(others)
             j = int(np.argmin(scores))
             if best is None or scores[j] < best[2]:
                 best = (c, others[j], scores[j])

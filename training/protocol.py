@@ -194,7 +194,7 @@ class Fold:
                 ksd_min = min(ksd_min, p.ksd)
         discarded = learner.discard_unused(since=begin + 1)
         return {"mistakes": sum(r in MISTAKES for r in results), "expert": results.count("expert"),
-                "expert_failed": results.count("expert-failed"), "ksd_min": ksd_min, "discarded": len(discarded),
+                "ksd_min": ksd_min, "discarded": len(discarded),
                 "features": sum(len(n.features) for n in learner.networks.values())}
 
     def _finish_stage(self, learner, state: dict, start: float, stages: int | None, limit: int) -> None:

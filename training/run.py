@@ -100,10 +100,10 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet) -> list[
     return pictures
 
 
-def feature_figures(learner: DistinctiveFeatureLearner, env: ImageSet, folder: Path) -> list[Path]:
-    """The pictures of :func:`feature_pictures` as PNG files in ``folder``."""
+def save_pictures(pictures: list[tuple[str, np.ndarray]], folder: Path) -> list[Path]:
+    """Pictures of :func:`feature_pictures` as PNG files ``folder``/<name>.png."""
     paths = []
-    for name, picture in feature_pictures(learner, env):
+    for name, picture in pictures:
         paths.append(folder / f"{name}.png")
         save_rgb(paths[-1], picture)
     return paths
@@ -121,8 +121,9 @@ def _stages(text: str) -> int | None:
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
-                incremental: bool) -> tuple[dict, Fold, DistinctiveFeatureLearner]:
-    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}."""
+                incremental: bool) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
+    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k};
+    also returns the learned features' pictures."""
     from torch.utils.tensorboard import SummaryWriter
 
     config = run_config(args, task, seed, incremental)
@@ -132,8 +133,9 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
         fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
-        log_run(writer, config, entry, learner, fold)
-    return entry, fold, learner
+        pictures = feature_pictures(learner, fold.train)
+        log_run(writer, config, entry, pictures)
+    return entry, fold, learner, pictures
 
 
 def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
@@ -143,7 +145,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
             "max_cycles": args.max_cycles, "incremental": incremental}
 
 
-def log_run(writer, config: dict, entry: dict, learner: DistinctiveFeatureLearner, fold: Fold) -> None:
+def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
     """Hyper-parameters with the final results (add_hparams, in the fold's own run) and the
     learned features as images (figure 5.2)."""
     final = entry["stages"][-1]
@@ -152,7 +154,7 @@ def log_run(writer, config: dict, entry: dict, learner: DistinctiveFeatureLearne
                "hparam/features": final["features"]["bn"], "hparam/queried": final["features"]["queried"],
                "hparam/stages": len(entry["stages"])}
     writer.add_hparams(hparams, metrics, run_name=".", global_step=final["step"])
-    for name, picture in feature_pictures(learner, fold.train):
+    for name, picture in pictures:
         writer.add_image(f"features/{name}", picture, final["step"], dataformats="HWC")
 
 
@@ -175,9 +177,9 @@ def recognize_command(args, incremental: bool = False) -> int:
     space = FeatureSpace().to(device)
     folds, figures = [], []
     for k in range(1, args.folds + 1):
-        entry, fold, learner = _train_fold(args, task, k, args.seed, space, out, logdir, incremental)
+        entry, fold, learner, pictures = _train_fold(args, task, k, args.seed, space, out, logdir, incremental)
         folds.append(entry)
-        figures += [str(p.relative_to(out)) for p in feature_figures(learner, fold.train, fold.folder)]
+        figures += [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
         (fold.folder / "networks").mkdir(exist_ok=True)
         for label, net in learner.networks.items():
             (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
