@@ -14,7 +14,7 @@ WIDTH, HEIGHT, MARGIN = 420, 200, 44
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def _text(canvas, text: str, at: tuple[int, int], scale: float = 0.38, colour=(0, 0, 0)) -> None:
+def put_text(canvas, text: str, at: tuple[int, int], scale: float = 0.38, colour=(0, 0, 0)) -> None:
     cv2.putText(canvas, text, at, FONT, scale, colour, 1, cv2.LINE_AA)
 
 
@@ -34,19 +34,19 @@ def line_panel(xs: list[float], series: dict[str, list[float]], top: float | Non
     cv2.rectangle(canvas, (left, upper), (right, lower), (150, 150, 150), 1)
     for k in range(5):
         y = top * k / 4
-        _text(canvas, f"{y:.2f}" if top <= 1 else f"{y:.0f}", (2, point(min(xs), y)[1] + 4))
+        put_text(canvas, f"{y:.2f}" if top <= 1 else f"{y:.0f}", (2, point(min(xs), y)[1] + 4))
     for x in xs:
-        _text(canvas, str(int(x)), (point(x, 0)[0] - 4, lower + 13))
+        put_text(canvas, str(int(x)), (point(x, 0)[0] - 4, lower + 13))
     for n, (name, ys) in enumerate(series.items()):
         colour = PALETTE[n % len(PALETTE)]
         pts = np.array([point(x, y) for x, y in zip(xs, ys)], np.int32)
         cv2.polylines(canvas, [pts], False, colour, 1, cv2.LINE_AA)
         for p in pts:
             cv2.circle(canvas, tuple(int(v) for v in p), 2, colour, -1, cv2.LINE_AA)
-        _text(canvas, name, (right - 70, upper + 12 + 11 * n), colour=colour)
+        put_text(canvas, name, (right - 70, upper + 12 + 11 * n), colour=colour)
     for x, (note, flagged) in zip(xs, notes or []):
         at = (min(point(x, 0)[0] - 10, WIDTH - 28), upper - 5)
-        _text(canvas, note, at, 0.32)
+        put_text(canvas, note, at, 0.32)
         if flagged:
             cv2.rectangle(canvas, (at[0] - 2, at[1] - 9), (at[0] + 24, at[1] + 3), (0, 0, 0), 1)
     return canvas

@@ -7,6 +7,9 @@ Commands:
                                checkpoint per fold.
   incremental --task coil --classes 10 ...   the incremental task of alg. 5.4: classes added
                                one at a time, each trained in stages; same outputs.
+  grasp --experiment clean|noisy|cue|mixed [--online]   the grasp pre-shaping experiments
+                               of chapter 6 on the built-in grasp simulator: report.json,
+                               report.md with histograms (figures 6.13, 6.14, 6.17), TensorBoard.
   evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
@@ -34,6 +37,7 @@ from training.datasets import Task, load_task
 from training.devices import resolve_device
 from training.protocol import Fold, confusion, feature_block, test_block
 from training.curves import write_curves
+from training.grasping.command import add_parser as add_grasp_parser
 from training.report import ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
 
 
@@ -276,6 +280,7 @@ def parser() -> argparse.ArgumentParser:
     p = commands.add_parser("incremental", help="incremental task (alg. 5.4): classes added one at a time")
     _training_options(p, "coil")
     p.set_defaults(run=lambda args: recognize_command(args, incremental=True))
+    add_grasp_parser(commands)
     p = commands.add_parser("evaluate", help="recognize another image set with a saved learner")
     p.add_argument("--checkpoint", required=True, help="a learner.json written by recognize")
     _task_options(p, ("coil", "folder"), "coil")

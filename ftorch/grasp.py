@@ -1,0 +1,280 @@
+"""Learning features that cue a haptic grasp controller (6.4, alg. 6.1 and 6.2).
+
+A feature's image orientation theta_f predicts the hand orientation theta_h = theta_f + mu_k
+(eq. 6.2), mu_k a mode of the von Mises mixture fitted to the offsets theta_H - theta_f it was
+seen with (eq. 6.4). Two :class:`GraspFeatureSet` s, F_2 and F_3, each hold their features and
+their own instance list (6.4.1): per experienced grasp the value and orientation of every
+feature of the set in that grasp's image, the final hand orientation theta_H, the quality mu_0
+and the grasp's symmetry period (prediction errors are taken modulo it, 6.5.1).
+
+Decisions the text leaves open:
+- The prediction errors of alg. 6.1 step 1 are those of each feature's *current* model on every
+  recorded instance (the exact Expectation step of 6.4.4; it is cheap here because the instance
+  list keeps every feature's orientation, so no image is revisited). A feature without a model
+  (new) is first fitted to all of its data points.
+- Where a feature made no false prediction, KSD_f = 1 and alpha_f lies below all its values (the
+  empty distribution's cdf is 1 everywhere); it needs ``min_points`` correct ones to be usable.
+- Eq. 6.8 weights each instance above alpha_f by the model's density at its offset; mu_0 is
+  capped at ``MU0_CAP`` (an infinite mu_0, no equilibrium, would swamp the average).
+- Unused features (never f*_c in the last ``discard_every`` grasps of their set, and at least
+  that old) are discarded after every ``discard_every`` grasps.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from .errors import InputError
+from .evaluate import feature_values
+from .features import Feature
+from .generate import expand_geometric, random_edgel_pair
+from .ksd import ksd
+from .record import ImageRecords
+from .vonmises import VonMisesMixture, fit_mixtures
+
+MU0_CAP = 2.0
+FINGERS = (2, 3)
+
+
+def angular_error(predicted, actual, period) -> np.ndarray:
+    """|predicted - actual| in radians, modulo the symmetry period (0: every orientation is right)."""
+    predicted, actual, period = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (predicted, actual, period)))
+    full = np.where(period > 0, period, 2 * math.pi)
+    difference = np.remainder(predicted - actual + full / 2, full) - full / 2
+    return np.where(period > 0, np.abs(difference), 0.0)
+
+
+class Experience(NamedTuple):
+    """What the haptic system reports after a grasp (alg. 6.2 step 5)."""
+
+    fingers: int
+    theta_H: float
+    mu0: float
+    period: float
+
+
+class Recommendation(NamedTuple):
+    """Alg. 6.2 steps 2-4: finger count, hand orientation, and the feature f*_c behind them."""
+
+    fingers: int
+    theta_h: float
+    feature: Feature
+    ksd: float
+    expected_mu0: float
+
+
+@dataclass
+class FeatureModel:
+    """Alg. 6.1's result: KSD_f, threshold alpha_f, orientation model (eq. 6.4) and E[M_0(f)] (eq. 6.8)."""
+
+    ksd: float
+    alpha: float
+    mixture: VonMisesMixture
+    offset: float  # mu_{k*} of alg. 6.2 step 3
+    expected_mu0: float
+
+    def to_dict(self) -> dict:
+        return {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
+                "expected_mu0": self.expected_mu0}
+
+
+class GraspFeatureSet:
+    """F_c and its instance list for one finger count c (alg. 6.2)."""
+
+    def __init__(self, fingers: int):
+        self.fingers = fingers
+        self.features: list[Feature] = []
+        self.models: list[FeatureModel | None] = []
+        self.born: list[int] = []
+        self.used: list[int] = []
+        self.images: list = []
+        self._row: dict = {}
+        self.records: list[ImageRecords] = []
+        self.values = np.zeros((0, 0))
+        self.thetas = np.zeros((0, 0))
+        self.theta_H = np.zeros(0)
+        self.mu0 = np.zeros(0)
+        self.period = np.zeros(0)
+        self.grasps = 0
+        self.sampled = 0
+
+    def __len__(self) -> int:
+        return len(self.features)
+
+    def measure(self, records: ImageRecords) -> tuple[np.ndarray, np.ndarray]:
+        """Values and orientations (F,) of every feature of the set in one image (step 2a)."""
+        if not self.features:
+            return np.zeros(0), np.zeros(0)
+        found = feature_values(self.features, records)
+        return found.values[:, 0].double().cpu().numpy(), found.theta[:, 0].double().cpu().numpy()
+
+    def choose(self, values: np.ndarray) -> int | None:
+        """Step 2b: the present feature (value > alpha_f) of largest KSD_f, None where none is."""
+        best, best_ksd = None, 0.0
+        for j, model in enumerate(self.models):
+            if model is not None and values[j] > model.alpha and model.ksd > best_ksd:
+                best, best_ksd = j, model.ksd
+        return best
+
+    def predict(self, values: np.ndarray, thetas: np.ndarray) -> tuple[int, float] | None:
+        """Steps 2b-4: (f*, theta_h) for one image's measurements, None without a present feature."""
+        j = self.choose(values)
+        return None if j is None else (j, float(thetas[j] + self.models[j].offset))
+
+    def add_instance(self, image, records: ImageRecords, values, thetas, experience: Experience) -> None:
+        """Step 5: one row of the instance list per distinct ``image`` (presenting an image again with
+        the same outcome adds no information, as in 4.4.1)."""
+        if image in self._row:
+            return
+        self._row[image] = len(self.images)
+        self.images.append(image)
+        self.records.append(records)
+        self.values = np.vstack([self.values, values[None, :]])
+        self.thetas = np.vstack([self.thetas, thetas[None, :]])
+        self.theta_H = np.append(self.theta_H, experience.theta_H)
+        self.mu0 = np.append(self.mu0, min(experience.mu0, MU0_CAP))
+        self.period = np.append(self.period, experience.period)
+
+    def add_features(self, features: list[Feature]) -> None:
+        """New features, measured on every recorded instance at once."""
+        features = [f for f in features if f is not None and f not in self.features]
+        if not features:
+            return
+        if self.images:
+            found = feature_values(features, ImageRecords.cat(self.records))
+            self.values = np.hstack([self.values, found.values.double().cpu().numpy().T])
+            self.thetas = np.hstack([self.thetas, found.theta.double().cpu().numpy().T])
+        else:
+            self.values = np.zeros((0, len(self.features) + len(features)))
+            self.thetas = np.zeros((0, len(self.features) + len(features)))
+        self.features += features
+        self.models += [None] * len(features)
+        self.born += [self.grasps] * len(features)
+        self.used += [-1] * len(features)
+        self.sampled += len(features)
+
+    def discard(self, window: int) -> int:
+        """Drop features at least ``window`` grasps old that were not f* during the last ``window``."""
+        keep = [j for j in range(len(self)) if self.born[j] > self.grasps - window or self.used[j] > self.grasps - window]
+        dropped = len(self) - len(keep)
+        if dropped:
+            for name in ("features", "models", "born", "used"):
+                setattr(self, name, [getattr(self, name)[j] for j in keep])
+            self.values, self.thetas = self.values[:, keep], self.thetas[:, keep]
+        return dropped
+
+    def fit(self, t_dtheta: float, max_k: int, min_points: int) -> None:
+        """Alg. 6.1 for every feature of the set, batched."""
+        if not self.features or not self.images:
+            return
+        offsets = self.theta_H[:, None] - self.thetas  # (n, F), NaN where a feature found no point
+        located = np.isfinite(offsets)
+        fresh = [j for j, m in enumerate(self.models) if m is None and located[:, j].sum() >= min_points]
+        start = dict(zip(fresh, fit_mixtures([offsets[located[:, j], j] for j in fresh], max_k))) if fresh else {}
+        mixture = {j: start.get(j) or (m.mixture if m is not None else None) for j, m in enumerate(self.models)}
+        modelled = [j for j in range(len(self)) if mixture[j] is not None]
+        if not modelled:
+            return
+        offset = np.array([float(mixture[j].mu[mixture[j].concentrated(min_points)]) for j in modelled])
+        error = angular_error(self.thetas[:, modelled] + offset, self.theta_H[:, None], self.period[:, None])
+        correct = located[:, modelled] & (error < t_dtheta)
+        false = located[:, modelled] & ~correct
+        values = torch.from_numpy(np.where(located[:, modelled], self.values[:, modelled], np.nan).T)
+        split = ksd(values, torch.from_numpy(correct.T), torch.from_numpy(false.T))
+        power, alpha = split.distinctive.numpy().copy(), split.cutpoint.numpy().copy()
+        perfect = ~false.any(0) & (correct.sum(0) >= min_points)
+        power[perfect], alpha[perfect] = 1.0, -math.inf
+        chosen = located[:, modelled] & (self.values[:, modelled] > alpha[None, :])
+        usable = [i for i in range(len(modelled)) if power[i] > 0 and chosen[:, i].sum() >= min_points]
+        fitted = fit_mixtures([offsets[chosen[:, i], modelled[i]] for i in usable], max_k) if usable else []
+        self.models = [None] * len(self)
+        for i, mix in zip(usable, fitted):
+            j, rows = modelled[i], chosen[:, i]
+            weight = mix.pdf(torch.from_numpy(offsets[rows, j])).numpy()
+            expected = float((weight * self.mu0[rows]).sum() / max(weight.sum(), 1e-300))
+            offset = float(mix.mu[mix.concentrated(min_points)])
+            self.models[j] = FeatureModel(float(power[i]), float(alpha[i]), mix, offset, expected)
+
+
+class GraspLearner:
+    """Alg. 6.2: recommends finger count and hand orientation, learns from every grasp's outcome.
+
+    ``t_dtheta`` (radians) divides correct from false predictions (6.4.2); ``max_k`` bounds the
+    mixtures' components; ``discard_every`` is the discarding period in grasps of a set;
+    ``max_distance`` bounds the edgel pairs sampled (pixels, default a quarter image side).
+    Every random choice comes from ``seed``.
+    """
+
+    def __init__(self, t_dtheta: float = math.radians(20), max_k: int = 4, min_points: int = 3,
+                 discard_every: int = 40, max_distance: float | None = None, seed: int = 0):
+        if not 0 < t_dtheta < math.pi:
+            raise InputError(f"t_dtheta must lie in (0, pi) radians, got {t_dtheta}")
+        if max_k < 1 or min_points < 1 or discard_every < 1:
+            raise InputError("max_k, min_points and discard_every must be at least 1")
+        self.t_dtheta, self.max_k, self.min_points = t_dtheta, max_k, min_points
+        self.discard_every, self.max_distance = discard_every, max_distance
+        self.sets = {c: GraspFeatureSet(c) for c in FINGERS}
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def _candidates(self, records: ImageRecords, fingers: int | None) -> list[int]:
+        if len(records) != 1:
+            raise InputError(f"grasp learner: expected the records of one image, got {len(records)}")
+        if fingers is not None and fingers not in self.sets:
+            raise InputError(f"fingers must be one of {FINGERS}, got {fingers}")
+        return list(FINGERS) if fingers is None else [fingers]
+
+    def recommend(self, records: ImageRecords, fingers: int | None = None) -> Recommendation | None:
+        """Steps 2-4 on one image: c (given, or the set whose f*_c expects the lower mu_0) and theta_h."""
+        best = None
+        for c in self._candidates(records, fingers):
+            chosen = self._predict(c, *self.sets[c].measure(records))
+            if chosen is not None and (best is None or chosen.expected_mu0 < best.expected_mu0):
+                best = chosen
+        return best
+
+    def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray) -> Recommendation | None:
+        feature_set = self.sets[c]
+        prediction = feature_set.predict(values, thetas)
+        if prediction is None:
+            return None
+        j, theta_h = prediction
+        feature_set.used[j] = feature_set.grasps
+        model = feature_set.models[j]
+        return Recommendation(c, theta_h, feature_set.features[j], model.ksd, model.expected_mu0)
+
+    def learn(self, image, records: ImageRecords, experience: Experience) -> str:
+        """Steps 5-10 after a grasp with ``experience.fingers`` fingers of the image ``records``
+        (``image`` names it in the instance list). Returns 'correct', 'refit' (right after step 7)
+        or 'sampled' (step 10)."""
+        c = self._candidates(records, experience.fingers)[0]
+        feature_set = self.sets[c]
+        values, thetas = feature_set.measure(records)
+        before = self._predict(c, values, thetas)
+        feature_set.add_instance(image, records, values, thetas, experience)
+        feature_set.grasps += 1
+        outcome = self._after(feature_set, records, values, thetas, before, experience)
+        if feature_set.grasps % self.discard_every == 0:
+            feature_set.discard(self.discard_every)
+        return outcome
+
+    def _correct(self, recommendation: Recommendation | None, experience: Experience) -> bool:
+        if recommendation is None:
+            return False
+        return bool(angular_error(recommendation.theta_h, experience.theta_H, experience.period) < self.t_dtheta)
+
+    def _after(self, feature_set, records, values, thetas, before, experience) -> str:
+        if self._correct(before, experience):
+            return "correct"
+        feature_set.fit(self.t_dtheta, self.max_k, self.min_points)
+        if self._correct(self._predict(feature_set.fingers, values, thetas), experience):
+            return "refit"
+        new = [random_edgel_pair(records, 0, self.generator, self.max_distance)]
+        if feature_set.features:
+            pick = int(torch.randint(len(feature_set), (1,), generator=self.generator))
+            new.append(expand_geometric(feature_set.features[pick], records, 0, self.generator, self.max_distance))
+        feature_set.add_features(new)
+        return "sampled"

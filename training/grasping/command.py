@@ -1,0 +1,167 @@
+"""``python -m training.run grasp``: the chapter 6 experiments with reports, figures and TensorBoard logs."""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ftorch import FeatureSpace
+from ftorch.draw import draw_features, grid, save_rgb, titled
+from ftorch.errors import InputError
+from ftorch.grasp import MU0_CAP, GraspLearner
+from training.devices import resolve_device
+from training.report import write_json
+
+from .experiment import EXPERIMENTS, GraspFold, simulate_pool
+from .haptics import HapticController
+from .figures import error_figure, grasp_figure
+from .report import UNPREDICTED_DEG, grasp_columns, results, write_markdown
+
+
+def _check(args) -> None:
+    if args.pool < 4:
+        raise InputError(f"--pool {args.pool}: expected at least 4 simulated grasps per category")
+    if not 1 <= args.best <= args.pool // 2:
+        raise InputError(f"--best {args.best}: expected 1 to {args.pool // 2} (half of --pool {args.pool})")
+    if args.epochs < 1:
+        raise InputError(f"--epochs {args.epochs}: expected at least 1")
+    if args.size < 32:
+        raise InputError(f"--size {args.size}: expected at least 32 pixels")
+    if not 0 < args.t_dtheta < 180:
+        raise InputError(f"--t-dtheta {args.t_dtheta}: expected degrees in (0, 180)")
+    if args.folds not in (1, 2):
+        raise InputError(f"--folds {args.folds}: expected 1 or 2")
+
+
+def config(args, device) -> dict:
+    return {"experiment": args.experiment, "seed": args.seed, "pool": args.pool, "best": args.best, "epochs": args.epochs,
+            "size": args.size, "t_dtheta_deg": args.t_dtheta, "folds": args.folds, "online": args.online,
+            "device": str(device)}
+
+
+def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict[str, np.ndarray]) -> None:
+    """Per-epoch scalars, the test histograms and their summaries, hyper-parameters and figures."""
+    for entry in fold.epochs:
+        for tag in ("mistakes", "poor", "features_2", "features_3", "sampled_2", "sampled_3"):
+            writer.add_scalar(f"train/{tag}", entry[tag], entry["epoch"])
+    step = len(fold.epochs)
+    res = results([evaluation])
+    errors = [UNPREDICTED_DEG if e is None else e for e in evaluation["orientation_errors_deg"]]
+    writer.add_histogram("test/orientation_error_deg", np.array(errors), step)
+    for side in ("haptic", "cued"):
+        writer.add_histogram(f"test/probes_{side}", np.array([g["probes"] for g in evaluation[side]]), step)
+        mu0 = [MU0_CAP if g["mu0"] is None else min(g["mu0"], MU0_CAP) for g in evaluation[side]]
+        writer.add_histogram(f"test/mu0_{side}", np.array(mu0), step)
+        writer.add_scalar(f"test/probes_{side}_mean", res["probes"][side]["mean"], step)
+        writer.add_scalar(f"test/mu0_{side}_median", res["mu0"][side]["median"], step)
+        writer.add_scalar(f"test/poor_{side}", res["poor_grasp_fraction"][side], step)
+    writer.add_scalar("test/orientation_error_median_deg", res["orientation_error_deg"]["median"], step)
+    writer.add_scalar("test/orientation_error_p90_deg", res["orientation_error_deg"]["p90"], step)
+    hparams = {k: v for k, v in settings.items() if isinstance(v, (int, float, str, bool))}
+    metrics = {"hparam/orientation_error_median_deg": res["orientation_error_deg"]["median"],
+               "hparam/poor_haptic": res["poor_grasp_fraction"]["haptic"], "hparam/poor_cued": res["poor_grasp_fraction"]["cued"]}
+    writer.add_hparams(hparams, metrics, run_name=".", global_step=step)
+    for name, picture in pictures.items():
+        writer.add_image(f"figures/{name}", picture, step, dataformats="HWC")
+
+
+def recommended_features(fold: GraspFold, per_kind: int = 3) -> np.ndarray:
+    """Figures 6.15 / 6.16: the feature f*_c behind the recommendation, drawn on held-out images."""
+    panels, shown = [], {}
+    for trial in fold.objects:
+        if shown.get(trial.kind, 0) >= per_kind:
+            continue
+        cue = fold.recommendation(trial)
+        if cue is None:
+            continue
+        shown[trial.kind] = shown.get(trial.kind, 0) + 1
+        picture = draw_features(fold.records[trial.key], 0, trial.image, [cue.feature], min_side=192)
+        panels.append(titled(picture, f"{trial.kind} {cue.fingers}f KSD {cue.ksd:.2f} E[mu0] {cue.expected_mu0:.2f}"))
+    return grid(panels, per_kind) if panels else np.full((8, 8, 3), 255, np.uint8)
+
+
+def grasp_command(args) -> int:
+    _check(args)
+    device = resolve_device(args.device)
+    start = time.perf_counter()
+    torch.manual_seed(args.seed)
+    settings = config(args, device)
+    out = Path(args.out or f"runs/grasp-{args.experiment}")
+    logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
+    out.mkdir(parents=True, exist_ok=True)
+    controller = HapticController()
+    space = FeatureSpace().to(device)
+    pool = simulate_pool(args.experiment, args.pool, args.seed, args.size, controller, not args.quiet)
+    modes = ("offline", "online") if args.online else ("offline",)
+    evaluations = {mode: [] for mode in modes}
+    folds, figures = [], []
+    from torch.utils.tensorboard import SummaryWriter
+
+    for k in range(1, args.folds + 1):
+        for mode in modes:
+            learner = GraspLearner(math.radians(args.t_dtheta), seed=args.seed * 100 + k)
+            fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, args.seed, not args.quiet)
+            fold.fit(args.epochs, online=mode == "online")
+            evaluation = fold.evaluate()
+            evaluations[mode].append(evaluation)
+            name = f"fold{k}" + ("-online" if mode == "online" else "")
+            pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{name}: orientation errors"),
+                        "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{name}: probes and mu_0"),
+                        "features": recommended_features(fold)}
+            with SummaryWriter(str(logdir / name)) as writer:
+                log_fold(writer, {**settings, "mode": mode}, fold, evaluation, pictures)
+            save_rgb(out / f"{name}_features.png", pictures["features"])
+            figures.append(f"{name}_features.png")
+            folds.append({"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
+                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None)
+                                                for f, m in zip(s.features, s.models)] for c, s in learner.sets.items()}})
+            last = fold.epochs[-1]
+            print(f"fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} mistakes; "
+                  f"{last['features_2']} + {last['features_3']} features")
+    offline = evaluations["offline"]
+    save_rgb(out / "errors.png", error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
+                                              f"{args.experiment}: orientation errors (figure 6.13)"))
+    save_rgb(out / "grasps.png", grasp_figure(grasp_columns(offline, args.experiment),
+                                              f"{args.experiment}: probes and mu_0, haptic only vs cued (figures 6.14, 6.17)"))
+    figures = ["errors.png", "grasps.png", *figures]
+    report = {"config": settings, "device": str(device), "seconds": time.perf_counter() - start, **results(offline)}
+    if args.online:
+        report["online"] = {mode: results(evaluations[mode]) for mode in modes}
+    report["folds"] = folds
+    write_json(out / "report.json", report)
+    write_markdown(out / "report.md", report, figures)
+    e, p = report["orientation_error_deg"], report["poor_grasp_fraction"]
+    print(f"{args.experiment}: orientation error median {e['median']:.1f} deg (p90 {e['p90']:.1f}); poor grasps "
+          f"haptic {p['haptic']:.2f} -> cued {p['cued']:.2f}; probes {report['probes']['haptic']['mean']:.1f} -> "
+          f"{report['probes']['cued']['mean']:.1f}; {report['seconds']:.1f} s")
+    if args.online:
+        on = report["online"]["online"]
+        print(f"on-line: orientation error median {on['orientation_error_deg']['median']:.1f} deg; poor grasps cued "
+              f"{on['poor_grasp_fraction']['cued']:.2f}")
+    print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
+    return 0
+
+
+def add_parser(commands) -> None:
+    """The ``grasp`` sub-command and its options."""
+    p = commands.add_parser("grasp", help="grasp pre-shaping experiments of chapter 6 (figures 6.13, 6.14, 6.17)")
+    p.add_argument("--experiment", choices=EXPERIMENTS, default="clean",
+                   help="clean (6.13a), noisy (6.13b), cue (6.14) or mixed (6.17; default clean)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--pool", type=int, default=80, help="simulated grasps per category (object kind and fingers; default 80)")
+    p.add_argument("--best", type=int, default=20, help="training grasps per category and fold (default 20)")
+    p.add_argument("--epochs", type=int, default=10, help="passes over the training grasps (default 10)")
+    p.add_argument("--t-dtheta", type=float, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
+    p.add_argument("--size", type=int, default=64, help="camera image side in pixels (default 64)")
+    p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
+    p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
+                   "recommended grasps, and report off-line vs on-line")
+    p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
+    p.add_argument("--out", help="run folder (default runs/grasp-EXPERIMENT)")
+    p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=grasp_command)
+

@@ -1,0 +1,185 @@
+"""The experiments of 6.5: simulated grasp data, two-fold cross-validation, off-line and on-line learning.
+
+Data: for each category (object kind, finger count) ``pool`` trials, trial j of a category with
+its own object, overhead image and haptic-only grasp from a uniformly random azimuth (the purely
+haptic system). Fold k (1, 2) tests on the half with j % 2 == k - 1 and trains on the other half.
+
+Experiments (the categories and how training grasps are chosen from a fold's training half):
+- clean (figure 6.13a) and cue (figure 6.14): the ``best`` lowest-mu_0 two-finger grasps of
+  squares and three-finger grasps of triangles;
+- noisy (figure 6.13b): ``best`` representative (unselected) grasps of each of the four
+  categories;
+- mixed (figure 6.17): the ``best`` lowest-mu_0 grasps of each of the four categories.
+
+Off-line training presents the chosen grasps in a seeded random order for up to ``epochs``
+passes (fewer where a pass makes no mistake); the learner's step 5 is simulated by comparing
+its theta_h with the recorded theta_H modulo the grasp's symmetry (6.5.1). On-line training
+(``--online``, beyond the thesis) grasps the same objects itself: the haptic controller starts
+from the recommended orientation and finger count (a random azimuth and the category's fingers
+where there is no recommendation), and learns from what it did.
+
+Tests on the held-out half: orientation errors of the recommendations for the test grasps chosen
+as for training (figure 6.13); and every held-out object of the experiment's categories grasped
+again from the recommendation (cued) against its recorded haptic-only grasp: probes and mu_0
+(figures 6.14, 6.17). The finger count is the category's, except in ``mixed``, where the learned
+models choose it (alg. 6.2 step 2b). A grasp is poor where mu_0 > ``POOR_MU0``, the split
+between the two modes of figure 6.17.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ftorch import FeatureSpace
+from ftorch.grasp import Experience, GraspLearner, angular_error
+from ftorch.record import ImageRecords
+
+from .camera import render
+from .haptics import GraspOutcome, HapticController, symmetry_period
+from .objects import KINDS, GraspObject, random_object
+
+EXPERIMENTS = ("clean", "noisy", "cue", "mixed")
+ALL_CATEGORIES = (("square", 2), ("triangle", 3), ("square", 3), ("triangle", 2))
+POOR_MU0 = 0.4
+
+
+def categories(experiment: str) -> tuple[tuple[str, int], ...]:
+    return ALL_CATEGORIES[:2] if experiment in ("clean", "cue") else ALL_CATEGORIES
+
+
+@dataclass
+class Trial:
+    kind: str
+    fingers: int
+    index: int
+    obj: GraspObject
+    image: np.ndarray
+    outcome: GraspOutcome
+
+    @property
+    def key(self) -> tuple:
+        return self.kind, self.fingers, self.index
+
+    @property
+    def period(self) -> float:
+        return symmetry_period(self.obj.symmetry)
+
+    def experience(self, outcome: GraspOutcome | None = None) -> Experience:
+        outcome = outcome or self.outcome
+        return Experience(outcome.fingers, outcome.theta_H, outcome.mu0, self.period)
+
+
+def _rng(seed: int, *path: int) -> np.random.Generator:
+    return np.random.default_rng([seed, *path])
+
+
+def simulate(kind: str, fingers: int, index: int, seed: int, size: int, controller: HapticController) -> Trial:
+    """Trial ``index`` of a category: object, image and a haptic-only grasp, all from (seed, category, index)."""
+    rng = _rng(seed, KINDS.index(kind), fingers, index)
+    obj = random_object(kind, rng)
+    image = render(obj, size, rng)
+    return Trial(kind, fingers, index, obj, image, controller.grasp(obj, fingers, rng.uniform(0, 2 * math.pi), rng))
+
+
+def regrasp(trial: Trial, fingers: int, theta_h: float | None, seed: int, purpose: int,
+            controller: HapticController) -> GraspOutcome:
+    """The trial's object grasped again (cued at theta_h, or from a random azimuth where None)."""
+    rng = _rng(seed, KINDS.index(trial.kind), trial.fingers, trial.index, 1000 + purpose)
+    start = rng.uniform(0, 2 * math.pi) if theta_h is None else theta_h
+    return controller.grasp(trial.obj, fingers, start, rng)
+
+
+def choose(trials: list[Trial], experiment: str, best: int) -> list[Trial]:
+    """The ``best`` grasps of one category's half: lowest mu_0 (clean, cue, mixed) or the first ones (noisy)."""
+    if experiment == "noisy":
+        return trials[:best]
+    return sorted(trials, key=lambda t: (t.outcome.mu0, t.index))[:best]
+
+
+class GraspFold:
+    """One fold: training (off-line or on-line) and tests, with per-epoch logs."""
+
+    def __init__(self, k: int, experiment: str, pool: dict, best: int, space: FeatureSpace, learner: GraspLearner,
+                 controller: HapticController, seed: int, progress: bool = False):
+        self.k, self.experiment, self.best = k, experiment, best
+        self.learner, self.controller, self.seed, self.progress = learner, controller, seed, progress
+        half = {c: [t for t in trials if t.index % 2 != k - 1] for c, trials in pool.items()}
+        held = {c: [t for t in trials if t.index % 2 == k - 1] for c, trials in pool.items()}
+        self.train = [t for c in categories(experiment) for t in choose(half[c], experiment, best)]
+        self.test = [t for c in categories(experiment) for t in choose(held[c], experiment, best)]
+        self.objects = [t for c in categories(experiment) for t in held[c]]
+        with torch.no_grad():
+            self.records = self._records(space, {t.key: t for t in self.train + self.test + self.objects}.values())
+        self.epochs: list[dict] = []
+
+    def _records(self, space: FeatureSpace, trials) -> dict[tuple, ImageRecords]:
+        trials = list(trials)
+        batch = space.records([torch.from_numpy(t.image) for t in trials], progress=self.progress)
+        return {t.key: batch[i] for i, t in enumerate(trials)}
+
+    def recommendation(self, trial: Trial):
+        """The learner's cue for a trial's image: its category's fingers, or chosen in ``mixed``."""
+        fingers = None if self.experiment == "mixed" else trial.fingers
+        return self.learner.recommend(self.records[trial.key], fingers)
+
+    def fit(self, epochs: int, online: bool = False) -> None:
+        """Alg. 6.2 over the training grasps for up to ``epochs`` passes (off-line: the recorded
+        grasps; on-line: grasps executed from the learner's recommendations)."""
+        order = torch.Generator().manual_seed(self.seed * 1000 + self.k)
+        bar = tqdm(range(epochs), desc=f"fold {self.k} {'on' if online else 'off'}-line", unit="epoch",
+                   disable=not self.progress)
+        for epoch in bar:
+            counts = {"correct": 0, "refit": 0, "sampled": 0}
+            mu0 = []
+            for i in torch.randperm(len(self.train), generator=order).tolist():
+                trial = self.train[i]
+                if online:
+                    cue = self.recommendation(trial)
+                    fingers = cue.fingers if cue is not None else trial.fingers
+                    outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 10 + epoch, self.controller)
+                    image = (*trial.key, epoch)
+                else:
+                    outcome, image = trial.outcome, trial.key
+                counts[self.learner.learn(image, self.records[trial.key], trial.experience(outcome))] += 1
+                mu0.append(outcome.mu0)
+            self.epochs.append({"epoch": epoch, **counts, "mistakes": (counts["refit"] + counts["sampled"]) / len(self.train),
+                                "poor": float(np.mean(np.array(mu0) > POOR_MU0)),
+                                **{f"features_{c}": len(s) for c, s in self.learner.sets.items()},
+                                **{f"sampled_{c}": s.sampled for c, s in self.learner.sets.items()}})
+            bar.set_postfix(mistakes=f"{self.epochs[-1]['mistakes']:.2f}")
+            if counts["correct"] == len(self.train) and not online:
+                break
+
+    def evaluate(self) -> dict:
+        """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects."""
+        errors = []
+        for trial in self.test:
+            cue = self.learner.recommend(self.records[trial.key], trial.fingers)
+            errors.append(None if cue is None else
+                          math.degrees(float(angular_error(cue.theta_h, trial.outcome.theta_H, trial.period))))
+        haptic, cued = [], []
+        for trial in self.objects:
+            cue = self.recommendation(trial)
+            fingers = cue.fingers if cue is not None else trial.fingers
+            outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 0, self.controller)
+            haptic.append(_grasp_row(trial, trial.outcome))
+            cued.append({**_grasp_row(trial, outcome), "recommended": cue is not None})
+        return {"orientation_errors_deg": errors, "haptic": haptic, "cued": cued}
+
+
+def _grasp_row(trial: Trial, outcome: GraspOutcome) -> dict:
+    return {"object": trial.kind, "index": trial.index, **outcome.to_dict()}
+
+
+def simulate_pool(experiment: str, pool: int, seed: int, size: int, controller: HapticController,
+                  progress: bool = False) -> dict:
+    """``pool`` trials of each of the experiment's categories."""
+    cats = categories(experiment)
+    jobs = [(kind, c, j) for kind, c in cats for j in range(pool)]
+    trials = [simulate(kind, c, j, seed, size, controller)
+              for kind, c, j in tqdm(jobs, desc="simulated grasps", unit="grasp", disable=not progress)]
+    return {cat: [t for t in trials if (t.kind, t.fingers) == cat] for cat in cats}

@@ -1,0 +1,110 @@
+"""Summaries of grasp experiments: report.json fields and report.md (6.5)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ftorch.grasp import MU0_CAP
+
+from .experiment import POOR_MU0
+
+UNPREDICTED_DEG = 180.0  # an image without a present feature counts as the worst error
+
+
+def summary(values, cap: float | None = None) -> dict:
+    """median, mean and 90th percentile (``cap`` bounds values, infinite or missing ones included)."""
+    data = np.array([np.inf if v is None else v for v in values], dtype=float)
+    if cap is not None:
+        data = np.minimum(data, cap)
+    if len(data) == 0:
+        return {"median": None, "mean": None, "p90": None, "n": 0}
+    return {"median": float(np.median(data)), "mean": float(np.mean(data)), "p90": float(np.quantile(data, 0.9)),
+            "n": int(len(data))}
+
+
+def poor_fraction(grasps: list[dict]) -> float:
+    return float(np.mean([g["mu0"] is None or g["mu0"] > POOR_MU0 for g in grasps])) if grasps else 0.0
+
+
+def results(evaluations: list[dict]) -> dict:
+    """The report's headline fields, pooled over the folds' tests."""
+    errors = [e for ev in evaluations for e in ev["orientation_errors_deg"]]
+    haptic = [g for ev in evaluations for g in ev["haptic"]]
+    cued = [g for ev in evaluations for g in ev["cued"]]
+    error = summary([UNPREDICTED_DEG if e is None else e for e in errors])
+    poor = {"haptic": poor_fraction(haptic), "cued": poor_fraction(cued), "split_mu0": POOR_MU0}
+    poor["reduction"] = 1 - poor["cued"] / poor["haptic"] if poor["haptic"] > 0 else None
+    fingers: dict[str, dict[str, int]] = {}
+    for g in cued:
+        row = fingers.setdefault(g["object"], {"2": 0, "3": 0})
+        row[str(g["fingers"])] += 1
+    return {
+        "orientation_error_deg": {"median": error["median"], "p90": error["p90"], "n": error["n"],
+                                  "unpredicted": sum(e is None for e in errors)},
+        "mu0": {"haptic": summary([g["mu0"] for g in haptic], MU0_CAP), "cued": summary([g["mu0"] for g in cued], MU0_CAP)},
+        "probes": {"haptic": summary([g["probes"] for g in haptic]), "cued": summary([g["probes"] for g in cued])},
+        "poor_grasp_fraction": poor,
+        "cued_fingers": fingers,
+        "recommended_fraction": float(np.mean([g["recommended"] for g in cued])) if cued else 0.0,
+    }
+
+
+def grasp_columns(evaluations: list[dict], experiment: str) -> dict[str, list[dict]]:
+    """Figure 6.17 (mixed): haptic-only two- and three-finger grasps, and cued ones; figure 6.14 (the
+    others): haptic-only and cued grasps per object kind."""
+    haptic = [g for ev in evaluations for g in ev["haptic"]]
+    cued = [g for ev in evaluations for g in ev["cued"]]
+    if experiment == "mixed":
+        return {"haptic, 2 fingers": [g for g in haptic if g["fingers"] == 2],
+                "haptic, 3 fingers": [g for g in haptic if g["fingers"] == 3],
+                "cued (fingers chosen)": cued}
+    columns = {}
+    for kind in dict.fromkeys(g["object"] for g in haptic):
+        fingers = next(g["fingers"] for g in haptic if g["object"] == kind)
+        columns[f"{kind}s, {fingers} fingers: haptic"] = [g for g in haptic if g["object"] == kind and g["fingers"] == fingers]
+        columns[f"{kind}s: cued"] = [g for g in cued if g["object"] == kind and g["fingers"] == fingers]
+    return columns
+
+
+THESIS = {  # what the thesis reports in words (6.5); it gives histograms, not numbers
+    "clean": "figure 6.13a: prediction errors almost always on the order of the variation in the training signal",
+    "noisy": "figure 6.13b: graceful degradation; most poor recommendations on outliers",
+    "cue": "figure 6.14: lengthy (> 13 probes) and poor (mu_0) grasps drastically reduced; expected probes unchanged",
+    "mixed": "figure 6.17: the mu_0 mode near 0.6 almost disappears; expected probes rise slightly",
+}
+
+
+def _block(title: str, res: dict) -> list[str]:
+    e, p = res["orientation_error_deg"], res["poor_grasp_fraction"]
+    reduction = "n/a" if p["reduction"] is None else f"{p['reduction']:.0%}"
+    return [f"### {title}", "",
+            "| | haptic only | cued |", "|---|---|---|",
+            f"| mu_0 median / p90 | {res['mu0']['haptic']['median']:.3f} / {res['mu0']['haptic']['p90']:.3f} "
+            f"| {res['mu0']['cued']['median']:.3f} / {res['mu0']['cued']['p90']:.3f} |",
+            f"| probes mean / median | {res['probes']['haptic']['mean']:.1f} / {res['probes']['haptic']['median']:.0f} "
+            f"| {res['probes']['cued']['mean']:.1f} / {res['probes']['cued']['median']:.0f} |",
+            f"| poor grasps (mu_0 > {p['split_mu0']}) | {p['haptic']:.2f} | {p['cued']:.2f} (reduction {reduction}) |", "",
+            f"Orientation error on {e['n']} test grasps: median {e['median']:.1f} deg, 90th percentile {e['p90']:.1f} deg "
+            f"({e['unpredicted']} without a prediction, counted as {UNPREDICTED_DEG:.0f} deg). "
+            f"Finger counts chosen for cued grasps: {res['cued_fingers']}.", ""]
+
+
+def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
+    config = report["config"]
+    lines = [f"# Grasp experiment `{config['experiment']}` (chapter 6)", "",
+             f"Device {report['device']}, {report['seconds']:.1f} s, seed {config['seed']}, {config['pool']} simulated grasps "
+             f"per category, {config['best']} training grasps per category and fold, t_dtheta {config['t_dtheta_deg']} deg.",
+             "", f"Thesis: {THESIS[config['experiment']]}.", "", *_block("Results (both folds pooled)", report)]
+    if "online" in report:
+        lines += ["## Off-line vs on-line learning on the same objects", ""]
+        lines += _block("off-line (observing the haptic system)", report["online"]["offline"])
+        lines += _block("on-line (the simulator executes the recommended grasps)", report["online"]["online"])
+    lines += ["## Per fold", "", "| fold | mode | epochs | mistakes in last epoch | features F_2 / F_3 | sampled F_2 / F_3 |",
+              "|---|---|---|---|---|---|"]
+    for fold in report["folds"]:
+        last = fold["epochs"][-1]
+        lines.append(f"| {fold['fold']} | {fold['mode']} | {len(fold['epochs'])} | {last['mistakes']:.2f} | "
+                     f"{last['features_2']} / {last['features_3']} | {last['sampled_2']} / {last['sampled_3']} |")
+    lines += ["", *[f"![{Path(f).stem}]({f})" for f in figures], ""]
+    path.write_text("\n".join(lines))
