@@ -1,0 +1,151 @@
+"""Alg. 6.1 and 6.2 (ftorch.grasp): angular errors, feature models against a brute-force re-derivation,
+discarding, learning on simulated grasps, reproducibility, bad input; and the ``grasp`` command."""
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from ftorch import FeatureSpace
+from ftorch.errors import InputError
+from ftorch.features import Texel
+from ftorch.grasp import Experience, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.vonmises import fit_mixture
+from training import run
+from training.grasping.experiment import GraspFold, simulate_pool
+from training.grasping.haptics import HapticController
+
+
+def test_angular_error_respects_symmetry():
+    quarter = math.pi / 2
+    assert angular_error(0.1, 0.0, 0.0) == 0.0  # a cylinder: every orientation is right
+    assert angular_error(math.radians(95), 0.0, quarter) == pytest.approx(math.radians(5))
+    assert angular_error(math.radians(-175), math.radians(175), 2 * math.pi) == pytest.approx(math.radians(10))
+    assert angular_error(math.radians(100), 0.0, 2 * math.pi / 3) == pytest.approx(math.radians(20))
+
+
+def _brute_ksd(values, correct):
+    """KSD = max over cut-points alpha (midpoints of distinct values, the lowest where tied) of
+    |cdf(alpha | false) - cdf(alpha | correct)|, and alpha; the power is the KSD where correct
+    predictions lie above alpha (6.4.2), else 0."""
+    best, alpha, sign = -1.0, math.nan, 0.0
+    distinct = np.unique(values)
+    for a in (distinct[:-1] + distinct[1:]) / 2:
+        difference = np.mean(values[~correct] < a) - np.mean(values[correct] < a)
+        if abs(difference) > best + 1e-12:
+            best, alpha, sign = abs(difference), a, difference
+    return (best if sign > 0 else 0.0), alpha
+
+
+def _synthetic_set(rng, n=60):
+    """Feature 0 responds strongly (0.8-1) to the first half, where theta_H = theta_f + 0.5 (2 degrees
+    of noise); weakly (0.2-0.5) to the rest, where theta_H is random. Feature 1 responds at random."""
+    s = GraspFeatureSet(2)
+    s.features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
+    s.models, s.born, s.used = [None, None], [0, 0], [-1, -1]
+    first = np.arange(n) < n // 2
+    s.thetas = rng.uniform(-math.pi, math.pi, (n, 2))
+    s.theta_H = np.where(first, s.thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n), rng.uniform(-math.pi, math.pi, n))
+    s.values = np.stack([np.where(first, rng.uniform(0.8, 1.0, n), rng.uniform(0.2, 0.5, n)), rng.uniform(0, 1, n)], 1)
+    s.mu0 = np.where(first, rng.uniform(0.0, 0.1, n), rng.uniform(0.5, 0.7, n))
+    s.period = np.full(n, 2 * math.pi)
+    s.images = list(range(n))
+    return s, first
+
+
+def test_feature_models_match_a_brute_force_rederivation():
+    s, first = _synthetic_set(np.random.default_rng(0))
+    t = math.radians(10)
+    s.fit(t, max_k=4, min_points=3)
+    model = s.models[0]
+    assert model is not None and model.ksd > 0.9 and 0.5 < model.alpha < 0.8
+    assert math.degrees(abs(model.offset - 0.5)) < 2
+    assert model.expected_mu0 == pytest.approx(s.mu0[first].mean(), abs=0.03)
+    for j, m in enumerate(s.models):  # alg. 6.1 step by step, with an independent KSD
+        offsets = s.theta_H - s.thetas[:, j]
+        start = fit_mixture(offsets, max_k=4)
+        correct = angular_error(s.thetas[:, j] + float(start.mu[start.concentrated(3)]), s.theta_H, s.period) < t
+        power, alpha = _brute_ksd(s.values[:, j], correct)
+        if m is None:
+            assert power == 0 or (s.values[:, j] > alpha).sum() < 3
+            continue
+        assert m.ksd == pytest.approx(power) and m.alpha == pytest.approx(alpha)
+        above = s.values[:, j] > alpha
+        mixture = fit_mixture(offsets[above], max_k=4)
+        assert m.mixture.k == mixture.k and torch.allclose(m.mixture.mu, mixture.mu)
+        weight = mixture.pdf(torch.from_numpy(offsets[above])).numpy()
+        assert m.expected_mu0 == pytest.approx((weight * s.mu0[above]).sum() / weight.sum())  # eq. 6.8
+
+
+def test_a_feature_without_false_predictions_is_perfect():
+    s, first = _synthetic_set(np.random.default_rng(1))
+    keep = np.flatnonzero(first)
+    s.values, s.thetas, s.theta_H, s.mu0, s.period = (a[keep] for a in (s.values, s.thetas, s.theta_H, s.mu0, s.period))
+    s.images = list(keep)
+    s.fit(math.radians(10), max_k=4, min_points=3)
+    assert s.models[0].ksd == 1.0 and s.models[0].alpha == -math.inf and s.models[0].mixture.n == len(keep)
+
+
+def test_unused_old_features_are_discarded():
+    s, _ = _synthetic_set(np.random.default_rng(2))
+    s.grasps, s.born, s.used = 50, [0, 0], [45, 3]
+    assert s.discard(40) == 1 and len(s) == 1 and s.values.shape == (60, 1) and s.used == [45]
+
+
+@pytest.fixture(scope="module")
+def clean_pool():
+    return simulate_pool("clean", 40, seed=0, size=64, controller=HapticController())
+
+
+def test_learner_predicts_hand_orientation_on_clean_grasps(clean_pool):
+    learner = GraspLearner(math.radians(10), seed=1)
+    fold = GraspFold(1, "clean", clean_pool, 10, FeatureSpace(), learner, HapticController(), seed=0)
+    fold.fit(8)
+    assert fold.epochs[-1]["mistakes"] < fold.epochs[0]["mistakes"]
+    errors = fold.evaluate()["orientation_errors_deg"]
+    assert np.median([180 if e is None else e for e in errors]) < 10
+
+
+def test_same_seed_same_features_and_models(clean_pool):
+    def train():
+        learner = GraspLearner(math.radians(10), seed=3)
+        GraspFold(2, "clean", clean_pool, 4, FeatureSpace(), learner, HapticController(), seed=0).fit(2)
+        return {c: ([f.to_json() for f in s.features], [m.to_dict() if m else None for m in s.models])
+                for c, s in learner.sets.items()}
+    assert train() == train()
+
+
+def test_bad_input_is_refused(clean_pool):
+    learner = GraspLearner()
+    records = FeatureSpace().records([torch.from_numpy(t.image) for t in clean_pool["square", 2][:2]])
+    with pytest.raises(InputError, match="one image"):
+        learner.recommend(records)
+    with pytest.raises(InputError, match="fingers"):
+        learner.learn("x", records[0], Experience(4, 0.0, 0.1, 0.0))
+    with pytest.raises(InputError, match="t_dtheta"):
+        GraspLearner(t_dtheta=4.0)
+
+
+def test_grasp_command_writes_report_figures_and_events(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["grasp", "--experiment", "mixed", "--pool", "8", "--best", "3", "--epochs", "2", "--folds", "1", "--online",
+            "--device", "cpu", "--quiet", "--out", str(out)]
+    assert run.main(argv) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["orientation_error_deg"]) >= {"median", "p90"}
+    for key in ("mu0", "probes"):
+        assert set(report[key]) == {"haptic", "cued"} and report[key]["haptic"]["n"] == 16  # 4 categories x 4 held out
+    assert set(report["poor_grasp_fraction"]) >= {"haptic", "cued"}
+    assert set(report["online"]) == {"offline", "online"} and [f["mode"] for f in report["folds"]] == ["offline", "online"]
+    assert all((out / name).is_file() for name in ("errors.png", "grasps.png", "fold1_features.png", "report.md"))
+    events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"scalars": 0, "histograms": 0})
+    events.Reload()
+    fold = report["folds"][0]
+    assert [e.value for e in events.Scalars("train/mistakes")] == pytest.approx([e["mistakes"] for e in fold["epochs"]])
+    assert events.Scalars("test/poor_cued")[0].value == pytest.approx(fold["poor_grasp_fraction"]["cued"])
+    assert {"test/orientation_error_deg", "test/probes_haptic", "test/probes_cued", "test/mu0_haptic",
+            "test/mu0_cued"} <= set(events.Tags()["histograms"])
+    assert run.main(argv[:-2] + ["--best", "5", "--out", str(out)]) == 2
+    assert "--best 5" in capsys.readouterr().err
