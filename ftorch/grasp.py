@@ -92,8 +92,11 @@ class GraspFeatureSet:
         self.born: list[int] = []
         self.used: list[int] = []
         self.images: list = []
-        self._row: dict = {}
-        self.records: list[ImageRecords] = []
+        self._seen: set = set()
+        self._sources: list[ImageRecords] = []  # distinct image records; rows of one image share them
+        self._source_index: dict[int, int] = {}  # id of a stored (hence live) records object -> its source
+        self._source_of_row: list[int] = []
+        self._batch: ImageRecords | None = None
         self.values = np.zeros((0, 0))
         self.thetas = np.zeros((0, 0))
         self.theta_H = np.zeros(0)
@@ -128,11 +131,14 @@ class GraspFeatureSet:
     def add_instance(self, image, records: ImageRecords, values, thetas, experience: Experience) -> None:
         """Step 5: one row of the instance list per distinct ``image`` (presenting an image again with
         the same outcome adds no information, as in 4.4.1)."""
-        if image in self._row:
+        if image in self._seen:
             return
-        self._row[image] = len(self.images)
+        self._seen.add(image)
         self.images.append(image)
-        self.records.append(records)
+        if id(records) not in self._source_index:
+            self._source_index[id(records)], self._batch = len(self._sources), None
+            self._sources.append(records)
+        self._source_of_row.append(self._source_index[id(records)])
         self.values = np.vstack([self.values, values[None, :]])
         self.thetas = np.vstack([self.thetas, thetas[None, :]])
         self.theta_H = np.append(self.theta_H, experience.theta_H)
@@ -140,14 +146,17 @@ class GraspFeatureSet:
         self.period = np.append(self.period, experience.period)
 
     def add_features(self, features: list[Feature]) -> None:
-        """New features, measured on every recorded instance at once."""
+        """New features, measured at once on every distinct image of the instance list."""
         features = [f for f in features if f is not None and f not in self.features]
         if not features:
             return
         if self.images:
-            found = feature_values(features, ImageRecords.cat(self.records))
-            self.values = np.hstack([self.values, found.values.double().cpu().numpy().T])
-            self.thetas = np.hstack([self.thetas, found.theta.double().cpu().numpy().T])
+            if self._batch is None:
+                self._batch = ImageRecords.cat(self._sources)
+            found = feature_values(features, self._batch)
+            rows = self._source_of_row
+            self.values = np.hstack([self.values, found.values.double().cpu().numpy().T[rows]])
+            self.thetas = np.hstack([self.thetas, found.theta.double().cpu().numpy().T[rows]])
         else:
             self.values = np.zeros((0, len(self.features) + len(features)))
             self.thetas = np.zeros((0, len(self.features) + len(features)))
@@ -235,6 +244,12 @@ class GraspLearner:
             if chosen is not None and (best is None or chosen.expected_mu0 < best.expected_mu0):
                 best = chosen
         return best
+
+    def untried(self, records: ImageRecords) -> list[int]:
+        """Finger counts whose set has no present feature in this image, hence no estimate of mu_0 for
+        step 2b. An on-line learner tries them (the thesis's off-line data never needed to), or a set
+        without features would never gain the experience that gives it some."""
+        return [c for c in self._candidates(records, None) if self.sets[c].choose(self.sets[c].measure(records)[0]) is None]
 
     def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray) -> Recommendation | None:
         feature_set = self.sets[c]

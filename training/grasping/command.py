@@ -78,7 +78,7 @@ def recommended_features(fold: GraspFold, per_kind: int = 3) -> np.ndarray:
         if cue is None:
             continue
         shown[trial.kind] = shown.get(trial.kind, 0) + 1
-        picture = draw_features(fold.records[trial.key], 0, trial.image, [cue.feature], min_side=192)
+        picture = draw_features(fold.records[trial.key], 0, trial.image, [cue.feature], min_side=256)
         panels.append(titled(picture, f"{trial.kind} {cue.fingers}f KSD {cue.ksd:.2f} E[mu0] {cue.expected_mu0:.2f}"))
     return grid(panels, per_kind) if panels else np.full((8, 8, 3), 255, np.uint8)
 

@@ -126,6 +126,16 @@ class GraspFold:
         fingers = None if self.experiment == "mixed" else trial.fingers
         return self.learner.recommend(self.records[trial.key], fingers)
 
+    def _explore(self, trial: Trial) -> tuple[int, float | None]:
+        """On-line: fingers and start azimuth for a training grasp. Where the finger count is free
+        (mixed) and a set has no present feature, that count is tried from a random azimuth (the
+        trial's own count first); otherwise the recommendation, or a random start without one."""
+        untried = self.learner.untried(self.records[trial.key]) if self.experiment == "mixed" else []
+        if untried:
+            return (trial.fingers if trial.fingers in untried else untried[0]), None
+        cue = self.recommendation(trial)
+        return (cue.fingers, cue.theta_h) if cue is not None else (trial.fingers, None)
+
     def fit(self, epochs: int, online: bool = False) -> None:
         """Alg. 6.2 over the training grasps for up to ``epochs`` passes (off-line: the recorded
         grasps; on-line: grasps executed from the learner's recommendations)."""
@@ -138,9 +148,8 @@ class GraspFold:
             for i in torch.randperm(len(self.train), generator=order).tolist():
                 trial = self.train[i]
                 if online:
-                    cue = self.recommendation(trial)
-                    fingers = cue.fingers if cue is not None else trial.fingers
-                    outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 10 + epoch, self.controller)
+                    fingers, theta_h = self._explore(trial)
+                    outcome = regrasp(trial, fingers, theta_h, self.seed, 10 + epoch, self.controller)
                     image = (*trial.key, epoch)
                 else:
                     outcome, image = trial.outcome, trial.key
