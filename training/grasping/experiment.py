@@ -16,7 +16,8 @@ passes (fewer where a pass makes no mistake); the learner's step 5 is simulated 
 its theta_h with the recorded theta_H modulo the grasp's symmetry (6.5.1). On-line training
 (``--online``, beyond the thesis) grasps the same objects itself: the haptic controller starts
 from the recommended orientation and finger count (a random azimuth and the category's fingers
-where there is no recommendation), and learns from what it did.
+where there is no recommendation; in ``mixed`` a finger count whose set has no present feature
+is tried first, see :meth:`GraspFold._explore`), and learns from what it did.
 
 Tests on the held-out half: orientation errors of the recommendations for the test grasps chosen
 as for training (figure 6.13); and every held-out object of the experiment's categories grasped
@@ -105,7 +106,7 @@ class GraspFold:
 
     def __init__(self, k: int, experiment: str, pool: dict, best: int, space: FeatureSpace, learner: GraspLearner,
                  controller: HapticController, seed: int, progress: bool = False):
-        self.k, self.experiment, self.best = k, experiment, best
+        self.k, self.experiment = k, experiment
         self.learner, self.controller, self.seed, self.progress = learner, controller, seed, progress
         half = {c: [t for t in trials if t.index % 2 != k - 1] for c, trials in pool.items()}
         held = {c: [t for t in trials if t.index % 2 == k - 1] for c, trials in pool.items()}
