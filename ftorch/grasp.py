@@ -218,7 +218,7 @@ class GraspLearner:
     Every random choice comes from ``seed``.
     """
 
-    def __init__(self, t_dtheta: float = math.radians(20), max_k: int = 4, min_points: int = 3,
+    def __init__(self, t_dtheta: float = math.radians(10), max_k: int = 4, min_points: int = 3,
                  discard_every: int = 40, max_distance: float | None = None, seed: int = 0):
         if not 0 < t_dtheta < math.pi:
             raise InputError(f"t_dtheta must lie in (0, pi) radians, got {t_dtheta}")
