@@ -10,7 +10,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
+from ftorch.evaluate import feature_values
 from ftorch.features import Texel
+from ftorch.generate import random_edgel_pair
 from ftorch.grasp import Experience, GraspFeatureSet, GraspLearner, angular_error
 from ftorch.vonmises import fit_mixture
 from training import run
@@ -115,6 +117,30 @@ def test_same_seed_same_features_and_models(clean_pool):
         return {c: ([f.to_json() for f in s.features], [m.to_dict() if m else None for m in s.models])
                 for c, s in learner.sets.items()}
     assert train() == train()
+
+
+def test_one_image_is_measured_once_per_set_until_the_features_change(clean_pool, monkeypatch):
+    import ftorch.grasp as grasp
+    learner = GraspLearner(math.radians(10), seed=0)
+    fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
+    fold.fit(2)  # F_2 and F_3 now hold features
+    calls = []
+    monkeypatch.setattr(grasp, "feature_values", lambda f, r: calls.append(len(f)) or feature_values(f, r))
+    trial = fold.objects[0]
+    records = fold.records[trial.key]
+    fresh = {c: s.measure(records) for c, s in learner.sets.items()}
+    assert len(calls) == 2
+    learner.untried(records), learner.recommend(records), learner.recommend(records, 2)
+    assert len(calls) == 2
+    for c, s in learner.sets.items():  # the kept result is the one a fresh measurement gives
+        np.testing.assert_array_equal(s.measure(records)[0], feature_values(s.features, records).values[:, 0].double().numpy())
+    calls.clear()
+    s = learner.sets[2]
+    s.add_features([random_edgel_pair(records, 0, torch.Generator().manual_seed(5))])  # measured on the instance list
+    calls.clear()
+    values, thetas = s.measure(records)
+    assert calls == [len(s)] and values.shape == thetas.shape == (len(s),)
+    np.testing.assert_array_equal(values[:-1], fresh[2][0][: len(s) - 1])
 
 
 def test_bad_input_is_refused(clean_pool):

@@ -166,19 +166,19 @@ class GraspFold:
 
     def evaluate(self) -> dict:
         """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects."""
-        errors = []
-        for trial in self.test:
-            cue = self.learner.recommend(self.records[trial.key], trial.fingers)
-            errors.append(None if cue is None else
-                          math.degrees(float(angular_error(cue.theta_h, trial.outcome.theta_H, trial.period))))
+        tested, errors = {t.key for t in self.test}, {}
         haptic, cued = [], []
-        for trial in self.objects:
+        for trial in self.objects:  # the test grasps are among them; each image is measured once
+            if trial.key in tested:
+                cue = self.learner.recommend(self.records[trial.key], trial.fingers)
+                errors[trial.key] = (None if cue is None else
+                                     math.degrees(float(angular_error(cue.theta_h, trial.outcome.theta_H, trial.period))))
             cue = self.recommendation(trial)
             fingers = cue.fingers if cue is not None else trial.fingers
             outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 0, self.controller)
             haptic.append(_grasp_row(trial, trial.outcome))
             cued.append({**_grasp_row(trial, outcome), "recommended": cue is not None})
-        return {"orientation_errors_deg": errors, "haptic": haptic, "cued": cued}
+        return {"orientation_errors_deg": [errors[t.key] for t in self.test], "haptic": haptic, "cued": cued}
 
 
 def _grasp_row(trial: Trial, outcome: GraspOutcome) -> dict:
