@@ -247,7 +247,8 @@ class GraspLearner:
         return list(FINGERS) if fingers is None else [fingers]
 
     def recommend(self, records: ImageRecords, fingers: int | None = None) -> Recommendation | None:
-        """Steps 2-4 on one image: c (given, or the set whose f*_c expects the lower mu_0) and theta_h."""
+        """Steps 2-4 on one image: c (given, or the set whose f*_c expects the lower mu_0) and theta_h.
+        Pure: only :meth:`learn` counts f*_c as used, for the set that grasped."""
         best = None
         for c in self._candidates(records, fingers):
             chosen = self._predict(c, *self.sets[c].measure(records))
@@ -261,13 +262,14 @@ class GraspLearner:
         without features would never gain the experience that gives it some."""
         return [c for c in self._candidates(records, None) if self.sets[c].choose(self.sets[c].measure(records)[0]) is None]
 
-    def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray) -> Recommendation | None:
+    def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray, use: bool = False) -> Recommendation | None:
         feature_set = self.sets[c]
         prediction = feature_set.predict(values, thetas)
         if prediction is None:
             return None
         j, theta_h = prediction
-        feature_set.used[j] = feature_set.grasps
+        if use:
+            feature_set.used[j] = feature_set.grasps
         model = feature_set.models[j]
         return Recommendation(c, theta_h, feature_set.features[j], model.ksd, model.expected_mu0)
 
@@ -278,7 +280,7 @@ class GraspLearner:
         c = self._candidates(records, experience.fingers)[0]
         feature_set = self.sets[c]
         values, thetas = feature_set.measure(records)
-        before = self._predict(c, values, thetas)
+        before = self._predict(c, values, thetas, use=True)
         feature_set.add_instance(image, records, values, thetas, experience)
         feature_set.grasps += 1
         outcome = self._after(feature_set, records, values, thetas, before, experience)
@@ -295,7 +297,7 @@ class GraspLearner:
         if self._correct(before, experience):
             return "correct"
         feature_set.fit(self.t_dtheta, self.max_k, self.min_points)
-        if self._correct(self._predict(feature_set.fingers, values, thetas), experience):
+        if self._correct(self._predict(feature_set.fingers, values, thetas, use=True), experience):
             return "refit"
         new = [random_edgel_pair(records, 0, self.generator, self.max_distance)]
         if feature_set.features:

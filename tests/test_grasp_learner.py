@@ -119,7 +119,7 @@ def test_same_seed_same_features_and_models(clean_pool):
     assert train() == train()
 
 
-def test_one_image_is_measured_once_per_set_until_the_features_change(clean_pool, monkeypatch):
+def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(clean_pool, monkeypatch):
     import ftorch.grasp as grasp
     learner = GraspLearner(math.radians(10), seed=0)
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
@@ -130,8 +130,13 @@ def test_one_image_is_measured_once_per_set_until_the_features_change(clean_pool
     records = fold.records[trial.key]
     fresh = {c: s.measure(records) for c, s in learner.sets.items()}
     assert len(calls) == 2
-    learner.untried(records), learner.recommend(records), learner.recommend(records, 2)
+    for s in learner.sets.values():
+        s.used = [-1] * len(s)  # as if no feature had been used yet
+    used = {c: list(s.used) for c, s in learner.sets.items()}
+    cue = learner.recommend(records)
+    learner.untried(records), learner.recommend(records, 2)
     assert len(calls) == 2
+    assert cue is not None and {c: s.used for c, s in learner.sets.items()} == used  # recommending is pure
     for c, s in learner.sets.items():  # the kept result is the one a fresh measurement gives
         np.testing.assert_array_equal(s.measure(records)[0], feature_values(s.features, records).values[:, 0].double().numpy())
     calls.clear()
