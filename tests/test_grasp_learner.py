@@ -139,7 +139,6 @@ def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(cle
     assert cue is not None and {c: s.used for c, s in learner.sets.items()} == used  # recommending is pure
     for c, s in learner.sets.items():  # the kept result is the one a fresh measurement gives
         np.testing.assert_array_equal(s.measure(records)[0], feature_values(s.features, records).values[:, 0].double().numpy())
-    calls.clear()
     s = learner.sets[2]
     s.add_features([random_edgel_pair(records, 0, torch.Generator().manual_seed(5))])  # measured on the instance list
     calls.clear()
