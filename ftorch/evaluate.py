@@ -18,11 +18,8 @@ from torch import Tensor
 from .errors import InputError
 from .features import Conjunction, Disjunction, Feature, LocalFeature
 from .record import EDGEL_SLOTS, ImageRecords
-from .salient import BLOB, EDGEL
-from .sampling import advance, sample_primitives
-from .steering import steer
-
-KIND_CODE = {"edgel": EDGEL, "texel": BLOB}  # sampling tells edgels from texels only
+from .sampling import advance, sample_part
+from .steering import rotate_pair, steer
 
 
 @dataclass
@@ -54,35 +51,27 @@ def part_vector(kind: str, vector: Sequence[float], device=None, dtype=None) -> 
     return out
 
 
-def _stack_parts(features: list[LocalFeature], device, dtype):
-    n = features[0].primitives
-    vectors = torch.stack([torch.stack([part_vector(p.kind, p.vector, device, dtype) for p in f.parts]) for f in features])
-    params = torch.tensor([[[p.phi, p.dtheta, p.d, p.dsigma] for p in f.parts] for f in features], device=device, dtype=dtype)
-    kinds = torch.tensor([[KIND_CODE[p.kind] for p in f.parts] for f in features], device=device).view(-1, n)
-    return vectors, params, kinds
-
-
 def local_values(features: list[LocalFeature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
-    """Values of local features that share the first part's kind and the number of parts."""
-    device, dtype = records.device, records.responses.dtype
-    vectors, params, kinds = _stack_parts(features, device, dtype)
-    n_parts = vectors.shape[1]
-    reference = _ReferencePoints(records, features[0].parts[0].kind)
+    """Values of local features whose parts have the same kinds, part by part."""
+    device, dtype = records.device, records.dtype
+    kinds = tuple(p.kind for p in features[0].parts)
+    vectors = [torch.tensor([f.parts[i].vector for f in features], device=device, dtype=dtype) for i in range(len(kinds))]
+    params = torch.tensor([[[p.phi, p.dtheta, p.d, p.dsigma] for p in f.parts] for f in features], device=device, dtype=dtype)
+    reference = _ReferencePoints(records, kinds[0])
     n_images, n_points = reference.mask.shape
     if n_points == 0:
         zeros = torch.zeros(len(features), n_images, device=device, dtype=dtype)
         nan = torch.full_like(zeros, math.nan)
         return FeatureValues(zeros, nan, nan, nan, nan)
-    chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if n_parts > 1 else 1)))
-    results = [
-        _local_chunk(vectors[s : s + chunk], params[s : s + chunk], kinds[s : s + chunk], records, reference)
-        for s in range(0, len(features), chunk)
-    ]
+    chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if len(kinds) > 1 else 1)))
+    results = [_local_chunk([v[s : s + chunk] for v in vectors], params[s : s + chunk], kinds, records, reference)
+               for s in range(0, len(features), chunk)]
     return FeatureValues(*(torch.cat(parts) for parts in zip(*(r._fields() for r in results))))
 
 
 class _ReferencePoints:
-    """The salient points of one kind (edgels or texels), packed to the left: (N, P_kind)."""
+    """The salient points of one kind (edgels or texels), packed to the left: (N, P_kind), with
+    their canonical vectors (the first-order pair for edgels, all 15 numbers for texels)."""
 
     def __init__(self, records: ImageRecords, kind: str):
         applicable = records.edgel_mask() if kind == "edgel" else records.texel_mask()
@@ -91,28 +80,31 @@ class _ReferencePoints:
         self.mask = applicable.gather(1, order)
         self.x, self.y = records.x.gather(1, order), records.y.gather(1, order)
         self.sigma, self.theta = records.sigma.gather(1, order), records.theta.gather(1, order)
-        self.canonical = records.canonical.gather(1, order[..., None].expand(-1, -1, records.canonical.shape[-1]))
+        canonical = records.canonical[..., EDGEL_SLOTS] if kind == "edgel" else records.canonical
+        self.canonical = canonical.gather(1, order[..., None].expand(-1, -1, canonical.shape[-1]))
 
 
-def _local_chunk(vectors, params, kinds, records: ImageRecords, reference: _ReferencePoints) -> FeatureValues:
-    n_feat, n_parts = vectors.shape[:2]
+def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], records: ImageRecords,
+                 reference: _ReferencePoints) -> FeatureValues:
+    n_feat = params.shape[0]
     n_images, n_points = reference.mask.shape
     shape = (n_feat, n_images, n_points)
-    numerator = torch.einsum("fd,npd->fnp", vectors[:, 0], reference.canonical)
+    numerator = torch.einsum("fd,npd->fnp", vectors[0], reference.canonical)
     observed = (reference.canonical**2).sum(-1).expand(shape)
     valid = reference.mask.expand(shape)
-    x, y = reference.x.expand(shape), reference.y.expand(shape)
-    theta, sigma = reference.theta.expand(shape), reference.sigma.expand(shape)
+    # padding points are placed nowhere, so no later part of theirs is sampled
+    x = torch.where(reference.mask, reference.x, math.nan).expand(shape)
+    y, theta, sigma = reference.y.expand(shape), reference.theta.expand(shape), reference.sigma.expand(shape)
     image = torch.arange(n_images, device=records.device)[None, :, None].expand(shape).reshape(-1)
-    for i in range(1, n_parts):
+    for i in range(1, len(kinds)):
         x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None, None] for j in range(4)))
-        kind = kinds[:, i][:, None, None].expand(shape).reshape(-1)
-        sample, ok = sample_primitives(records, image, x.reshape(-1), y.reshape(-1), sigma.reshape(-1), kind)
-        sample = steer(sample, theta.reshape(-1)).view(*shape, 15)
-        numerator = numerator + torch.einsum("fnpd,fd->fnp", sample, vectors[:, i])
+        edgel = kinds[i] == "edgel"
+        sample, ok = sample_part(records, image, x.reshape(-1), y.reshape(-1), sigma.reshape(-1), edgel)
+        sample = (rotate_pair(sample, theta.reshape(-1)) if edgel else steer(sample, theta.reshape(-1))).view(*shape, -1)
+        numerator = numerator + torch.einsum("fnpd,fd->fnp", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
         valid = valid & ok.view(shape)
-    pattern = (vectors**2).sum((1, 2))[:, None, None]
+    pattern = sum((v**2).sum(1) for v in vectors)[:, None, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
     cosine = torch.where(valid, cosine.clamp_min(0), torch.full_like(cosine, -1.0))
     best, where = cosine.max(-1)
@@ -140,14 +132,14 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
         _collect(feature, leaves)
     groups: dict[tuple, list[LocalFeature]] = {}
     for leaf in leaves:
-        groups.setdefault((leaf.parts[0].kind, leaf.primitives), []).append(leaf)
+        groups.setdefault(tuple(p.kind for p in leaf.parts), []).append(leaf)
     leaf_values: dict[LocalFeature, tuple[Tensor, ...]] = {}
     for group in groups.values():
         result = local_values(group, records, max_elements)
         for j, leaf in enumerate(group):
             leaf_values[leaf] = tuple(t[j] for t in result._fields())
     if not features:
-        empty = records.responses.new_zeros(0, len(records))
+        empty = records.x.new_zeros(0, len(records))
         return FeatureValues(empty, empty, empty, empty, empty)
     rows = [_combine(f, leaf_values) for f in features]
     return FeatureValues(*(torch.stack(col) for col in zip(*rows)))

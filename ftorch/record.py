@@ -9,7 +9,6 @@ first-order slots of the middle block (3.4.1) and leaves the rest zero.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -35,16 +34,41 @@ def kind_slots(kind: Tensor) -> Tensor:
     return torch.where((kind == EDGEL)[..., None], edgel_slots, slots)
 
 
+class Pyramid:
+    """The response pyramids of a batch of images, stored once in the layout sampling reads.
+
+    ``table`` (N, H, W, S+3, 5) holds at [n, y, x, j] the five basis responses of level j-1
+    (zero outside the pyramid), so the levels around any pixel and level are one contiguous run
+    that sampling reads as a row (``ftorch.sampling``). Record batches selected from one another
+    share their :class:`Pyramid` (no copies).
+    """
+
+    def __init__(self, responses: Tensor):
+        self.table = torch.nn.functional.pad(responses.permute(0, 3, 4, 1, 2), (0, 0, 1, 2)).contiguous()
+
+    @property
+    def responses(self) -> Tensor:
+        """(N, S, 5, H, W), a view of the table."""
+        return self.table[:, :, :, 1:-2].permute(0, 3, 4, 1, 2)
+
+    def to(self, device) -> "Pyramid":
+        moved = Pyramid.__new__(Pyramid)
+        moved.table = self.table.to(device)
+        return moved
+
+
 @dataclass
 class ImageRecords:
     """A padded batch of N image records.
 
-    responses (N, S, 5, H, W); levels (N,) and sizes (N, 2) = (H, W) per image;
+    pyramid: the response pyramids, shared by batches selected from one another, and source (N,)
+    each record's row in it; levels (N,) and sizes (N, 2) = (H, W) per image;
     per point (N, P): x, y (pixels; x = column), level, sigma, theta, kind, strength, mask;
     descriptors (N, P, 15) in the image frame and canonical (N, P, 15) steered to theta.
     """
 
-    responses: Tensor
+    pyramid: Pyramid
+    source: Tensor
     levels: Tensor
     sizes: Tensor
     x: Tensor
@@ -80,7 +104,8 @@ class ImageRecords:
         dtype = responses.dtype
         level_sigma = 2.0 ** (k.to(dtype) / 2)
         return cls(
-            responses=responses,
+            pyramid=Pyramid(responses),
+            source=torch.arange(batch, device=responses.device),
             levels=torch.full((batch,), levels, dtype=torch.long, device=responses.device),
             sizes=torch.tensor([[height, width]] * batch, dtype=torch.long, device=responses.device),
             x=pad(x.to(dtype)),
@@ -95,28 +120,33 @@ class ImageRecords:
             canonical=pad(steer(raw, points.theta)),
         )
 
-    @cached_property
-    def sampling_rows(self) -> Tensor:
-        """The pyramid as overlapping rows of 20 values for sampling: row pixel*(S+3) + j holds
-        the 5 basis responses at levels j-1, j, j+1, j+2 of that pixel (zero outside the pyramid).
-        """
-        padded = torch.nn.functional.pad(self.responses.permute(0, 3, 4, 1, 2), (0, 0, 1, 2)).contiguous()
-        return padded.as_strided((padded.numel() // 5 - 3, 20), (5, 1))
+    @property
+    def responses(self) -> Tensor:
+        """(N, S, 5, H, W) responses of these records (a copy unless they are the whole pyramid)."""
+        whole = self.pyramid.responses
+        if len(self) == whole.shape[0] and bool((self.source == torch.arange(len(self), device=self.device)).all()):
+            return whole
+        return whole[self.source]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.pyramid.table.dtype
 
     def __len__(self) -> int:
-        return self.responses.shape[0]
+        return self.source.shape[0]
 
     def __getitem__(self, index) -> "ImageRecords":
+        """The records ``index`` selects (an int, slice or index tensor); the pyramid is shared."""
         if isinstance(index, int):
             index = slice(index, index + 1) if index != -1 else slice(-1, None)
-        return ImageRecords(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return ImageRecords(self.pyramid, **{f.name: getattr(self, f.name)[index] for f in fields(self)[1:]})
 
     def to(self, device) -> "ImageRecords":
-        return ImageRecords(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+        return ImageRecords(self.pyramid.to(device), **{f.name: getattr(self, f.name).to(device) for f in fields(self)[1:]})
 
     @property
     def device(self) -> torch.device:
-        return self.responses.device
+        return self.source.device
 
     def texel_mask(self) -> Tensor:
         return self.mask & ((self.kind == BLOB) | (self.kind == CORNER))
@@ -139,14 +169,17 @@ class ImageRecords:
             return records[0]
         fills = {"sigma": 1, "kind": -1, "mask": False}
         joined = {}
-        for f in fields(ImageRecords):
+        for f in fields(ImageRecords)[2:]:
             parts = [getattr(r, f.name) for r in records]
             if f.name in ("levels", "sizes"):
                 joined[f.name] = torch.cat(parts)
                 continue
             shape = [max(p.shape[d] for p in parts) for d in range(1, parts[0].ndim)]
             joined[f.name] = torch.cat([_pad(p, shape, fills.get(f.name, 0)) for p in parts])
-        return ImageRecords(**joined)
+        responses = [r.responses for r in records]
+        shape = [max(p.shape[d] for p in responses) for d in range(1, 5)]
+        pyramid = Pyramid(torch.cat([_pad(p, shape, 0) for p in responses]))
+        return ImageRecords(pyramid, torch.arange(len(pyramid.table), device=pyramid.table.device), **joined)
 
 
 def _pad(t: Tensor, shape: list[int], fill) -> Tensor:

@@ -96,7 +96,7 @@ def reference_value(feature: Feature, records: ImageRecords, n: int) -> float:
         return a * b if isinstance(feature, Conjunction) else max(a, b)
     levels = int(records.levels[n])
     height, width = (int(v) for v in records.sizes[n])
-    pyramid = records.responses[n, :levels, :, :height, :width].double().cpu().numpy()
+    pyramid = records[n].responses[0, :levels, :, :height, :width].double().cpu().numpy()
     want_edgel = feature.parts[0].kind == "edgel"
     best = 0.0
     for p in range(records.mask.shape[1]):

@@ -16,11 +16,16 @@ from torch import Tensor
 _DELTA = torch.tensor([[2 * (k - j) * math.pi / 3 for j in range(3)] for k in range(3)], dtype=torch.float64)
 
 
+def rotate_pair(pair: Tensor, angle: Tensor) -> Tensor:
+    """Steer first-order pairs (..., 2) by ``angle`` (...): the first-order half of eq. 3.8."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    a0, a1 = pair[..., 0], pair[..., 1]
+    return torch.stack([c * a0 + s * a1, -s * a0 + c * a1], dim=-1)
+
+
 def steer_block(block: Tensor, angle: Tensor) -> Tensor:
     """Steer basis blocks (..., 5) by ``angle`` (...) radians with eq. 3.8."""
-    c, s = torch.cos(angle), torch.sin(angle)
-    a0, a1 = block[..., 0], block[..., 1]
-    first = torch.stack([c * a0 + s * a1, -s * a0 + c * a1], dim=-1)
+    first = rotate_pair(block[..., 0:2], angle)
     b = block[..., 2:5]
     delta = _DELTA.to(block.device, block.dtype)
     cos_b = b @ torch.cos(delta).T
