@@ -1,8 +1,11 @@
 """Checkpoint files: plain JSON, written atomically, read without executing anything (no pickle).
 
-A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 1, ...}. Floats
-are written as Python's shortest exact repr and arrays as zlib-compressed little-endian
-float64 in base64, so a state survives a round trip bit for bit. Writing goes to a temporary
+A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 2, ...}. Floats
+are written as Python's shortest exact repr; arrays as zlib-compressed little-endian float32
+where that holds every value exactly (feature values are computed in float32), else float64,
+in base64; long texts (feature tables) as zlib-compressed UTF-8 in base64. So a state
+survives a round trip bit for bit. Compressed data are inflated only up to the size their
+declared shape allows (``MAX_BYTES`` at most): a small damaged or hostile file cannot blow up. Writing goes to a temporary
 file in the same folder, flushed and fsynced, then renamed over the target: a crash leaves
 either the old checkpoint or the new one, never half of one. Reading refuses, with one line
 naming the file, a missing, truncated, foreign, other-kind or newer checkpoint.
@@ -21,25 +24,59 @@ import numpy as np
 from .errors import InputError
 
 FORMAT = "ftorch"
-VERSION = 1
+VERSION = 2
+MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
+
+
+def _compress(raw: bytes) -> str:
+    return base64.b64encode(zlib.compress(raw, 1)).decode("ascii")
+
+
+def _inflate(text, size: int) -> bytes:
+    """Decompress at most ``size`` bytes; ValueError where the data hold more or less."""
+    if size > MAX_BYTES:
+        raise ValueError(f"declares {size} bytes, more than the {MAX_BYTES} a checkpoint may hold")
+    inflater = zlib.decompressobj()
+    raw = inflater.decompress(base64.b64decode(text, validate=True), size + 1)
+    if len(raw) != size or inflater.unconsumed_tail or not inflater.eof:
+        raise ValueError(f"holds other than the {size} bytes it declares")
+    return raw
 
 
 def encode_array(array: np.ndarray) -> dict:
-    """A float64 array as JSON-ready data: shape and compressed bytes."""
+    """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes."""
     data = np.ascontiguousarray(array, dtype="<f8")
-    return {"shape": list(data.shape), "data": base64.b64encode(zlib.compress(data.tobytes(), 6)).decode("ascii")}
+    narrow = data.astype("<f4")
+    if np.array_equal(narrow.astype("<f8"), data, equal_nan=True):
+        data = narrow
+    return {"shape": list(data.shape), "dtype": data.dtype.str, "data": _compress(data.tobytes())}
 
 
 def decode_array(data: dict) -> np.ndarray:
-    """Inverse of :func:`encode_array`; ValueError where the data are damaged."""
+    """Inverse of :func:`encode_array` (as float64); ValueError where the data are damaged."""
     try:
         shape = tuple(int(v) for v in data["shape"])
-        flat = np.frombuffer(zlib.decompress(base64.b64decode(data["data"], validate=True)), dtype="<f8")
+        dtype = np.dtype({"<f4": "<f4", "<f8": "<f8"}[data["dtype"]])
+        if any(v < 0 for v in shape):
+            raise ValueError(f"negative shape {shape}")
+        flat = np.frombuffer(_inflate(data["data"], int(np.prod(shape)) * dtype.itemsize), dtype=dtype)
     except (KeyError, TypeError, ValueError, zlib.error) as err:
         raise ValueError(f"damaged array ({err})") from None
-    if flat.size != int(np.prod(shape)):
-        raise ValueError(f"array holds {flat.size} numbers, its shape {shape} asks for {int(np.prod(shape))}")
-    return flat.reshape(shape).copy()
+    return flat.reshape(shape).astype(np.float64)
+
+
+def encode_text(text: str) -> dict:
+    """A long text as JSON-ready data: its length in bytes and its compressed UTF-8."""
+    raw = text.encode("utf-8")
+    return {"bytes": len(raw), "data": _compress(raw)}
+
+
+def decode_text(data: dict) -> str:
+    """Inverse of :func:`encode_text`; ValueError where the data are damaged."""
+    try:
+        return _inflate(data["data"], int(data["bytes"])).decode("utf-8")
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError, zlib.error) as err:
+        raise ValueError(f"damaged text ({err})") from None
 
 
 def save_checkpoint(path, kind: str, payload: dict) -> Path:

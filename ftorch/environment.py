@@ -16,7 +16,7 @@ import torch
 from .checkpoint import decode_array, encode_array
 from .errors import InputError
 from .evaluate import feature_values
-from .features import Feature
+from .features import Feature, FeatureTable, unpack_features
 from .images import as_image_batch, load_image
 from .record import FeatureSpace, ImageRecords
 
@@ -93,17 +93,25 @@ class ImageSet:
         records = self.record(images[0]) if len(images) == 1 else self.records(images)
         return feature_values(features, records).values.double().cpu().numpy()
 
-    def cache_state(self) -> dict:
-        """The value cache as JSON-ready data: feature descriptions and the exact table."""
+    def cache_state(self, table: FeatureTable | None = None) -> dict:
+        """The value cache as JSON-ready data: the features, by position in ``table`` (or in a
+        table of its own, written as "table"), and the exact values."""
+        own = table is None
+        table = FeatureTable() if own else table
         features = sorted(self._row, key=self._row.__getitem__)
-        return {"features": [f.to_dict() for f in features], "values": encode_array(self._cache[: len(features)])}
+        state = {"features": [table.index(f) for f in features], "values": encode_array(self._cache[: len(features)])}
+        if own:
+            state["table"] = table.pack()
+        return state
 
-    def load_cache_state(self, state: dict) -> None:
-        """Restore a cache written by :meth:`cache_state` for this same image set."""
+    def load_cache_state(self, state: dict, features: list[Feature] | None = None) -> None:
+        """Restore a cache written by :meth:`cache_state` for this same image set (``features``:
+        the table it was written against, where the caller kept one)."""
         try:
-            features = [Feature.from_dict(d) for d in state["features"]]
+            known = unpack_features(state["table"]) if features is None else features
+            features = [known[i] for i in state["features"]]
             table = decode_array(state["values"])
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(f"value cache is damaged: {err}") from None
         if table.shape != (len(features), len(self)):
             raise InputError(f"value cache holds {table.shape}, expected ({len(features)}, {len(self)}) for this image set")

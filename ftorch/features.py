@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
+from .checkpoint import decode_text, encode_text
 from .errors import InputError
 
 PART_SIZE = {"texel": 15, "edgel": 2}
@@ -78,7 +80,12 @@ class Feature(_CachedHash):
         raise NotImplementedError
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict())
+        """The feature as JSON text (features are immutable: written once, then kept)."""
+        cached = self.__dict__.get("_json")
+        if cached is None:
+            cached = json.dumps(self.to_dict(), separators=(",", ":"))
+            object.__setattr__(self, "_json", cached)
+        return cached
 
     @staticmethod
     def from_dict(data: dict) -> "Feature":
@@ -176,3 +183,60 @@ class Conjunction(_Boolean):
 
 class Disjunction(_Boolean):
     """Value = maximum of the two sub-feature values (3.5.2)."""
+
+
+CHUNK = 1024  # features per compressed block of a packed table
+
+
+class FeatureTable:
+    """Features written once and referred to by position, as checkpoints store them.
+
+    :meth:`index` gives a feature's position (adding it if new); :meth:`pack` writes the table as
+    compressed JSON blocks of ``CHUNK`` features; :func:`unpack_features` reads it back. A table
+    that grows between checkpoints (the value cache's does) re-packs only its last block: packed
+    blocks are remembered by their features.
+    """
+
+    _packed: OrderedDict = OrderedDict()  # tuple of features -> packed block, the most recent 256
+
+    def __init__(self):
+        self.features: list[Feature] = []
+        self._index: dict[Feature, int] = {}
+
+    def index(self, feature: Feature) -> int:
+        if feature not in self._index:
+            self._index[feature] = len(self.features)
+            self.features.append(feature)
+        return self._index[feature]
+
+    def pack(self) -> dict:
+        blocks = []
+        for start in range(0, len(self.features), CHUNK):
+            chunk = tuple(self.features[start : start + CHUNK])
+            block = self._packed.get(chunk)
+            if block is None:
+                block = encode_text("[" + ",".join(f.to_json() for f in chunk) + "]")
+                self._packed[chunk] = block
+                if len(self._packed) > 256:
+                    self._packed.popitem(last=False)
+            blocks.append(block)
+        return {"blocks": blocks}
+
+
+def unpack_features(data: dict) -> list[Feature]:
+    """The features of a :meth:`FeatureTable.pack` table; ValueError where it is damaged."""
+    if not isinstance(data, dict) or not isinstance(data.get("blocks"), list):
+        raise ValueError("damaged feature table (no blocks)")
+    features = []
+    for block in data["blocks"]:
+        try:
+            items = json.loads(decode_text(block))
+        except (json.JSONDecodeError, RecursionError) as err:
+            raise ValueError(f"damaged feature table ({type(err).__name__})") from None
+        if not isinstance(items, list):
+            raise ValueError("damaged feature table (not a list)")
+        try:
+            features += [Feature.from_dict(d) for d in items]
+        except RecursionError:
+            raise ValueError("damaged feature table (nested too deeply)") from None
+    return features

@@ -37,7 +37,7 @@ from .bayes import ClassNetwork, compound_arcs
 from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
 from .environment import ImageSet
 from .errors import InputError
-from .features import Conjunction, Disjunction, Feature, LocalFeature
+from .features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, unpack_features
 from .generate import expand_geometric, random_edgel_pair, random_texel
 from .instances import InstanceList
 from .ksd import distinctive_at, ksd
@@ -91,6 +91,7 @@ class DistinctiveFeatureLearner:
         self.usage: dict = {}
         self.presentations = 0
         self.sampled = 0
+        self.trainable = True  # False once loaded from a recognition-only state
 
     # -- measurement -------------------------------------------------------------------------
     def _measure(self, env: ImageSet, features, images) -> None:
@@ -163,6 +164,9 @@ class DistinctiveFeatureLearner:
         """
         if not 0.0 <= t_ksd <= 1.0:
             raise InputError(f"t_ksd must lie in [0, 1], got {t_ksd}")
+        if not self.trainable:
+            raise InputError("this learner was loaded from a recognition-only file (learner.json) and cannot learn: "
+                             "load a state saved with training=True, such as a fold's checkpoint.json, to go on learning")
         self.presentations += 1
         true = env.labels[image]
         for label in sorted(true, key=str):  # network order breaks ties in alg. 4.4: keep it fixed
@@ -357,39 +361,51 @@ class DistinctiveFeatureLearner:
         return False
 
     # -- state ---------------------------------------------------------------------------------
-    def state_dict(self) -> dict:
-        """The complete learner state as JSON-ready data (features stored once, referred to by index)."""
-        features = list(dict.fromkeys([*self._in_use(), *self.instances.features, *self.usage,
-                                       *(f for _, f in self.discriminates)]))
-        index = {f: i for i, f in enumerate(features)}
-        networks = [{
-            "label": _label(label), "features": [index[f] for f in net.features],
-            "parents": [[index[p] for p in net.parents[f]] for f in net.features],
+    def _networks_state(self, table: FeatureTable) -> list:
+        return [{
+            "label": _label(label), "features": [table.index(f) for f in net.features],
+            "parents": [[table.index(p) for p in net.parents[f]] for f in net.features],
             "threshold": [net.threshold[f] for f in net.features],
             "prior": net.prior.tolist(), "cpt": [encode_array(net.cpt[f]) for f in net.features],
         } for label, net in self.networks.items()]
-        instances = self.instances
-        return {
-            "n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information, "presentations": self.presentations, "sampled": self.sampled,
-            "generator": encode_array(self.generator.get_state().numpy().astype(np.float64)),
-            "features": [f.to_dict() for f in features], "networks": networks,
-            "discriminates": [[_label(c), index[f], sorted(map(_label, d), key=str)] for (c, f), d in self.discriminates.items()],
-            "usage": [[index[f], n] for f, n in self.usage.items()],
-            "instances": {"images": [_label(i) for i in instances.images],
-                          "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
-                          "features": [index[f] for f in instances.features],
-                          "values": encode_array(instances.values_table())},
-        }
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore a state written by :meth:`state_dict`; ValueError or InputError where it is damaged."""
-        features = [Feature.from_dict(d) for d in state["features"]]
+    def state_dict(self, training: bool = True, table: FeatureTable | None = None) -> dict:
+        """The learner state as JSON-ready data, features referred to by position in a feature table.
+
+        ``training=True``: the complete state (instance list, usage, random state), from which
+        learning continues exactly; ``False``: what recognition needs (the networks). The table
+        is written into the state as "features", unless the caller passes its own ``table``
+        (to store features shared with other state once) and writes it.
+        """
+        own = table is None
+        table = FeatureTable() if own else table
+        state = {"n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information,
+                 "presentations": self.presentations, "sampled": self.sampled,
+                 "networks": self._networks_state(table)}
+        if training:
+            instances = self.instances
+            state.update({
+                "generator": encode_array(self.generator.get_state().numpy().astype(np.float64)),
+                "discriminates": [[_label(c), table.index(f), sorted(map(_label, d), key=str)]
+                                  for (c, f), d in self.discriminates.items()],
+                "usage": [[table.index(f), n] for f, n in self.usage.items()],
+                "instances": {"images": [_label(i) for i in instances.images],
+                              "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
+                              "features": [table.index(f) for f in instances.features],
+                              "values": encode_array(instances.values_table())},
+            })
+        if own:
+            state["features"] = table.pack()
+        return state
+
+    def load_state_dict(self, state: dict, features: list[Feature] | None = None) -> None:
+        """Restore a state written by :meth:`state_dict` (``features``: the caller's table, where it
+        kept one); ValueError or InputError where it is damaged. A recognition-only state gives a
+        learner that recognizes but refuses to learn."""
+        features = unpack_features(state["features"]) if features is None else features
         self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
         self.min_information = float(state["min_information"])
         self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
-        generator_state = decode_array(state["generator"]).astype(np.uint8)
-        self.generator = torch.Generator()
-        self.generator.set_state(torch.from_numpy(generator_state))
         self.networks = {}
         for record in state["networks"]:
             net = ClassNetwork(record["label"])
@@ -404,10 +420,15 @@ class DistinctiveFeatureLearner:
                     raise ValueError(f"CPT of shape {table.shape} for a node with {len(net.parents[k])} feature parents")
                 net.cpt[k] = table
             self.networks[net.label] = net
+        self.trainable = "instances" in state
+        self.discriminates, self.usage, self.instances = {}, {}, InstanceList()
+        self.generator = torch.Generator()
+        if not self.trainable:
+            return
+        self.generator.set_state(torch.from_numpy(decode_array(state["generator"]).astype(np.uint8)))
         self.discriminates = {(c, features[f]): frozenset(d) for c, f, d in state["discriminates"]}
         self.usage = {features[f]: int(n) for f, n in state["usage"]}
         block = state["instances"]
-        self.instances = InstanceList()
         for image, labels in zip(block["images"], block["labels"]):
             self.instances.add(image, labels)
         columns = [features[i] for i in block["features"]]
@@ -417,9 +438,10 @@ class DistinctiveFeatureLearner:
         if columns:
             self.instances.set_block(self.instances.images, columns, values.T)
 
-    def save(self, path) -> None:
-        """Write the learner to ``path`` (JSON, atomically)."""
-        save_checkpoint(path, KIND, {"learner": self.state_dict()})
+    def save(self, path, training: bool = False) -> None:
+        """Write the learner to ``path`` (JSON, atomically): what recognition needs, or with
+        ``training=True`` the complete state (see :meth:`state_dict`)."""
+        save_checkpoint(path, KIND, {"learner": self.state_dict(training)})
 
     @classmethod
     def load(cls, path) -> "DistinctiveFeatureLearner":

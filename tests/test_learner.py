@@ -1,10 +1,13 @@
 """The incremental learner (alg. 4.7, 4.8, 4.10) on a small synthetic task, and its pieces."""
+import json
+
 import cv2
 import numpy as np
 import pytest
 import torch
 
 from ftorch.environment import ImageSet
+from ftorch.features import unpack_features
 from ftorch.instances import InstanceList
 from ftorch.learner import DistinctiveFeatureLearner
 from ftorch.bayes import ClassNetwork
@@ -147,12 +150,27 @@ def test_discard_unused_removes_features_and_recounts(shapes):
 
 def test_saved_learner_continues_exactly(shapes, tmp_path):
     a, _ = train(shapes, seed=4, cycles=1)
-    a.save(tmp_path / "a.json")
+    a.save(tmp_path / "a.json", training=True)
     b = DistinctiveFeatureLearner.load(tmp_path / "a.json")
     assert b.state_dict() == a.state_dict()
     for i in list(range(18)) * 2:
         assert a.learn(shapes, i)[1] == b.learn(shapes, i)[1]
     assert b.state_dict() == a.state_dict()
+
+
+def test_recognition_file_holds_the_networks_only_recognizes_alike_and_refuses_to_learn(shapes, tmp_path):
+    a, _ = train(shapes, seed=4, cycles=1)
+    a.save(tmp_path / "full.json", training=True)
+    a.save(tmp_path / "a.json")
+    b = DistinctiveFeatureLearner.load(tmp_path / "a.json")
+    assert len(unpack_features(json.loads((tmp_path / "a.json").read_text())["learner"]["features"])) == len(a._in_use())
+    assert len(a.instances.features) > len(a._in_use())  # the full state holds more: failed candidates' values
+    assert (tmp_path / "a.json").stat().st_size < (tmp_path / "full.json").stat().st_size / 2
+    assert b.state_dict(training=False) == a.state_dict(training=False)
+    ours, theirs = a.recognize_many(shapes, range(len(shapes))), b.recognize_many(shapes, range(len(shapes)))
+    assert [(r.posteriors, r.queried) for r in ours] == [(r.posteriors, r.queried) for r in theirs]
+    with pytest.raises(InputError, match="recognition-only"):
+        b.learn(shapes, 0)
 
 
 def test_choose_pair_takes_the_least_well_discriminated_pair_alg_5_2():

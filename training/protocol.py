@@ -33,6 +33,7 @@ from tqdm import tqdm
 from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
+from ftorch.features import FeatureTable, unpack_features
 from ftorch.learner import DistinctiveFeatureLearner
 from ftorch.recognition import Recognition, accuracy, outcome
 
@@ -120,10 +121,15 @@ class Fold:
         return self.folder / "checkpoint.json"
 
     def _save(self, learner, order, state: dict):
+        """The checkpoint: features stored once for the value cache and the learner, the cache's
+        first (it only grows, so its packed blocks are reused from the last checkpoint)."""
+        table = FeatureTable()
+        cache = self.train.cache_state(table)
+        learned = learner.state_dict(table=table)
         save_checkpoint(self.checkpoint, FOLD_KIND, {
             "config": self.config, "fold": self.fold, "state": state,
             "order": encode_array(order.get_state().numpy().astype(np.float64)),
-            "learner": learner.state_dict(), "cache": self.train.cache_state()})
+            "features": table.pack(), "learner": learned, "cache": cache})
 
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
@@ -133,9 +139,10 @@ class Fold:
         learner = DistinctiveFeatureLearner()
         order = torch.Generator()
         try:
-            learner.load_state_dict(data["learner"])
+            features = unpack_features(data["features"])
+            learner.load_state_dict(data["learner"], features)
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
-            self.train.load_cache_state(data["cache"])
+            self.train.load_cache_state(data["cache"], features)
             state = dict(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None

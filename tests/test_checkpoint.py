@@ -1,0 +1,70 @@
+"""Checkpoint encoding: exact round trips, float32 only where exact, bounded inflation, shared feature tables."""
+import base64
+import json
+import zlib
+
+import numpy as np
+import pytest
+
+from ftorch.checkpoint import MAX_BYTES, decode_array, decode_text, encode_array, encode_text
+from ftorch.features import CHUNK, Conjunction, FeatureTable, Geometric, Part, Texel, unpack_features
+
+
+def test_arrays_round_trip_exactly_in_float32_where_that_is_exact():
+    values = np.random.default_rng(0).random((30, 7)).astype(np.float32).astype(np.float64)
+    values[3, 2] = np.nan
+    packed = encode_array(values)
+    assert packed["dtype"] == "<f4"
+    assert np.array_equal(decode_array(packed), values, equal_nan=True)
+    wide = values + 1e-12  # not float32 numbers: kept as float64
+    assert encode_array(wide)["dtype"] == "<f8" and np.array_equal(decode_array(encode_array(wide)), wide, equal_nan=True)
+
+
+def test_inflation_stops_at_the_declared_size():
+    bomb = {"shape": [4], "dtype": "<f8", "data": base64.b64encode(zlib.compress(bytes(10**7))).decode()}
+    with pytest.raises(ValueError, match="other than the 32 bytes"):
+        decode_array(bomb)
+    with pytest.raises(ValueError, match="more than the"):
+        decode_array({"shape": [MAX_BYTES], "dtype": "<f8", "data": bomb["data"]})
+    with pytest.raises(ValueError, match="negative shape"):
+        decode_array({"shape": [-1, 4], "dtype": "<f8", "data": bomb["data"]})
+    with pytest.raises(ValueError, match="damaged array"):
+        decode_array({"shape": [4], "dtype": "object", "data": bomb["data"]})
+    text = encode_text("features " * 1000)
+    assert decode_text(text) == "features " * 1000
+    with pytest.raises(ValueError, match="damaged text"):
+        decode_text({"bytes": 10, "data": text["data"]})
+
+
+def test_feature_tables_store_each_feature_once_and_read_back_equal():
+    texel = Texel([0.1 * (i + 1) for i in range(15)])
+    pair = Geometric((Part("edgel", [1.0, 0.0]), Part("edgel", [0.5, 0.25], phi=0.3, dtheta=1.1, d=2.0, dsigma=1.4)))
+    table = FeatureTable()
+    assert [table.index(f) for f in (texel, pair, texel, Conjunction(texel, pair), pair)] == [0, 1, 0, 2, 1]
+    assert unpack_features(table.pack()) == [texel, pair, Conjunction(texel, pair)]
+
+
+def test_deeply_nested_or_foreign_feature_tables_are_refused():
+    nested = '{"type":"conjunction","a":' * 100000 + "1" + "}" * 100000
+    with pytest.raises(ValueError, match="damaged feature table"):
+        unpack_features({"blocks": [encode_text("[" + nested + "]")]})
+    with pytest.raises(ValueError, match="not a list"):
+        unpack_features({"blocks": [encode_text(json.dumps({"type": "texel"}))]})
+    with pytest.raises(ValueError, match="no blocks"):
+        unpack_features(encode_text("[]"))
+
+
+def test_a_grown_table_packs_to_what_a_fresh_one_packs():
+    features = [Texel([float(i + 1)] + [0.5] * 14) for i in range(2 * CHUNK + 10)]
+    grown = FeatureTable()
+    for f in features[: CHUNK + 3]:
+        grown.index(f)
+    first = grown.pack()
+    for f in features:
+        grown.index(f)
+    fresh = FeatureTable()
+    for f in features:
+        fresh.index(f)
+    assert grown.pack() == fresh.pack() and len(grown.pack()["blocks"]) == 3
+    assert grown.pack()["blocks"][0] is first["blocks"][0]  # the full first block was packed once
+    assert unpack_features(grown.pack()) == features
