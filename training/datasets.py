@@ -11,7 +11,11 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
+import torch
+
 from ftorch.errors import InputError
+from ftorch.images import load_image
 
 from .plym import plym_images
 
@@ -45,12 +49,29 @@ def _folder(root) -> Path:
     return root
 
 
-def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0) -> Task:
+def reduced(path: Path, size: int) -> torch.Tensor:
+    """The image at ``path`` area-averaged (``cv2.INTER_AREA``) so that its shorter side is ``size``
+    pixels: for an integer factor, the mean of each block, as ``coil-20-32`` was made (before rounding)."""
+    image = load_image(path)
+    height, width = image.shape
+    side = min(height, width)
+    if size > side:
+        raise InputError(f"--size {size}: {path} is only {height}x{width}; --size can only reduce images")
+    if size == side:
+        return image
+    shape = (max(1, round(width * size / side)), max(1, round(height * size / side)))
+    return torch.from_numpy(cv2.resize(image.numpy(), shape, interpolation=cv2.INTER_AREA))
+
+
+def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0, size: int | None = None) -> Task:
     """COIL objects 1..``classes``, ``views`` consecutive views from ``first_view`` (5 degrees apart).
 
     Files are found anywhere below ``root`` by their original names ``obj{k}__{view}.png``
-    (any image size), so both a flat folder and the original COIL layout work.
+    (any image size), so both a flat folder and the original COIL layout work. With ``size``
+    the images are loaded and reduced by area averaging to that shorter side (:func:`reduced`).
     """
+    if size is not None and size < 8:
+        raise InputError(f"--size {size}: expected at least 8 pixels")
     root = _folder(root)
     if classes < 2 or views < 2:
         raise InputError(f"the COIL task needs at least 2 classes and 2 views, got {classes} and {views}")
@@ -66,7 +87,7 @@ def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0) -> T
             if (k, view) not in found:
                 raise InputError(f"--data {root}: COIL image obj{k}__{view}.png not found "
                                  f"({len(found)} COIL images there; need objects 1-{classes}, views {first_view}-{first_view + views - 1})")
-            images.append(found[(k, view)])
+            images.append(found[(k, view)] if size is None else reduced(found[(k, view)], size))
             labels.append(f"obj{k}")
             names.append(f"obj{k}__{view}")
             positions.append(j)
@@ -102,17 +123,20 @@ def plym_task(size: int = 64, seed: int = 0, classes: int | None = None) -> Task
     return Task("plym", *([getattr(task, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
 
 
-def load_task(name: str, data=None, classes: int | None = None, views: int = 20, size: int = 64, seed: int = 0,
-              first_view: int = 0) -> Task:
-    """The task named on the command line; ``classes`` defaults to 6 for COIL and all 8 for Plym."""
+def load_task(name: str, data=None, classes: int | None = None, views: int = 20, size: int | None = None,
+              seed: int = 0, first_view: int = 0) -> Task:
+    """The task named on the command line; ``classes`` defaults to 6 for COIL and all 8 for Plym;
+    ``size`` is the Plym image side (default 64) or the reduced COIL side (default: as stored)."""
     if name == "plym":
-        return plym_task(size, seed, classes)
+        return plym_task(64 if size is None else size, seed, classes)
     if classes is None:
         classes = 6
     if data is None:
         raise InputError(f"--task {name} needs --data DIR")
     if name == "coil":
-        return coil_task(data, classes, views, first_view)
+        return coil_task(data, classes, views, first_view, size)
     if name == "folder":
+        if size is not None:
+            raise InputError("--size applies to --task coil and plym, not to class folders")
         return folder_task(data)
     raise InputError(f"--task {name!r}: expected coil, folder or plym")
