@@ -35,6 +35,7 @@ from ftorch.learner import DistinctiveFeatureLearner
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
+from training.parallel import TasksFailed, run_tasks
 from training.protocol import Fold, confusion, feature_block, test_block
 from training.curves import write_curves
 from training.grasping.command import add_parser as add_grasp_parser
@@ -144,7 +145,8 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
 
 def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
     return {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
-            "classes": task.classes(), "views": args.views, "first_view": args.first_view, "size": args.size, "seed": seed,
+            "classes": task.classes(), "views": args.views, "first_view": args.first_view,
+            "size": 64 if args.size is None and task.name == "plym" else args.size, "seed": seed,
             "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information, "device": str(resolve_device(args.device)), "stages": args.stages,
             "max_cycles": args.max_cycles, "incremental": incremental}
 
@@ -162,6 +164,29 @@ def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndar
         writer.add_image(f"features/{name}", picture, final["step"], dataformats="HWC")
 
 
+_TASKS: dict[tuple, Task] = {}  # data sets loaded in this process, by their load_task arguments
+
+
+def fold_task(job: dict) -> dict:
+    """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
+    class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
+    Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
+    args = argparse.Namespace(**job["args"])
+    key = (args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
+    if key not in _TASKS:
+        _TASKS.clear()
+        _TASKS[key] = load_task(*key)
+    space = FeatureSpace().to(resolve_device(args.device))
+    out, k = Path(job["out"]), job["fold"]
+    entry, fold, learner, pictures = _train_fold(args, _TASKS[key], k, job["seed"], space, out, Path(job["logdir"]),
+                                                 job["incremental"])
+    figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
+    (fold.folder / "networks").mkdir(exist_ok=True)
+    for label, net in learner.networks.items():
+        (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
+    return {"entry": entry, "figures": figures}
+
+
 def recognize_command(args, incremental: bool = False) -> int:
     device = resolve_device(args.device)
     _stages(args.stages)
@@ -171,22 +196,33 @@ def recognize_command(args, incremental: bool = False) -> int:
         raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
     if args.seeds < 1:
         raise InputError(f"--seeds {args.seeds}: expected at least 1")
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: expected at least 1")
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information)  # refuses bad parameters early
     start = time.perf_counter()
     torch.manual_seed(args.seed)
     task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
+    _TASKS.clear()
+    _TASKS[(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)] = task
     name = f"{task.name}-inc" if incremental else task.name
     out = Path(args.out or f"runs/{name}")
     logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
-    space = FeatureSpace().to(device)
-    folds, figures = [], []
-    for k in range(1, args.folds + 1):
-        entry, fold, learner, pictures = _train_fold(args, task, k, args.seed, space, out, logdir, incremental)
-        folds.append(entry)
-        figures += [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
-        (fold.folder / "networks").mkdir(exist_ok=True)
-        for label, net in learner.networks.items():
-            (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
+    parallel = args.workers > 1 or args.ray is not None
+    settings = {k: v for k, v in vars(args).items() if k != "run"}
+    settings["quiet"] = args.quiet or parallel  # one progress bar over the tasks instead of one per fold
+    jobs = [{"args": settings, "fold": k, "seed": args.seed, "out": str(out), "logdir": str(logdir),
+             "incremental": incremental} for k in range(1, args.folds + 1)]
+    jobs += [{"args": settings, "fold": 1, "seed": args.seed + n, "out": str(out / f"seed{args.seed + n}"),
+              "logdir": str(logdir / f"seed{args.seed + n}"), "incremental": incremental} for n in range(1, args.seeds)]
+    names = [f"fold {j['fold']} seed {j['seed']}" for j in jobs]
+    try:
+        results = run_tasks(fold_task, jobs, names, args.workers, args.ray, progress=not args.quiet)
+    except TasksFailed as failed:
+        raise InputError(f"{len(failed.failures)} of {len(jobs)} tasks failed twice ({failed}); the folders of "
+                         f"the others are complete in {out}") from None
+    folds = [r["entry"] for r in results[: args.folds]]
+    figures = [f for r in results[: args.folds] for f in r["figures"]]
+    for k, entry in enumerate(folds, 1):
         for stage in entry["stages"]:
             taught = f", {stage['classes']} classes" if incremental else ""
             print(f"fold {k} stage {stage['stage']}{taught} "
@@ -195,8 +231,7 @@ def recognize_command(args, incremental: bool = False) -> int:
                   f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
     seeds = None
     if args.seeds > 1:
-        runs = [folds[0]] + [_train_fold(args, task, 1, args.seed + n, space, out / f"seed{args.seed + n}",
-                                         logdir / f"seed{args.seed + n}", incremental)[0] for n in range(1, args.seeds)]
+        runs = [folds[0]] + [r["entry"] for r in results[args.folds:]]
         seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
     seconds = time.perf_counter() - start
     report = build_report(run_config(args, task, args.seed, incremental), str(device), seconds, folds, seeds)
@@ -259,7 +294,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--seeds", type=int, default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
                    "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
-    p.add_argument("--size", type=int, default=64, help="Plym image side in pixels (default 64)")
+    p.add_argument("--size", type=int, help="image side in pixels: Plym renders at it (default 64); COIL images "
+                   "are area-averaged down to it on load (default: as stored, e.g. 32 or 128)")
     p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
     p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
     p.add_argument("--min-information", type=float, default=MIN_INFORMATION, metavar="BITS",
@@ -269,6 +305,11 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
+    p.add_argument("--workers", type=int, default=1, help="run the folds and seeds as N local processes at once "
+                   "(default 1: one after another); the report is the same")
+    p.add_argument("--ray", metavar="ADDRESS", help="run the folds and seeds as tasks on a Ray cluster (ray.init "
+                   "address, e.g. auto or ray://HEAD:10001; local: a local instance with --workers CPUs); "
+                   "needs the distributed extra")
 
 
 def parser() -> argparse.ArgumentParser:

@@ -1,0 +1,78 @@
+"""Independent tasks in local processes and on Ray: same results as one after another, failures retried once."""
+import importlib.util
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from training import run
+from training.parallel import TasksFailed, run_tasks
+
+ARGS = ["recognize", "--task", "plym", "--classes", "3", "--size", "32", "--folds", "2", "--seed", "1",
+        "--device", "cpu", "--quiet", "--stages", "0", "--max-cycles", "3"]
+
+
+def square(x):
+    return x * x
+
+
+def flaky(argument):
+    """Fails the first time it is called for a marker file that does not exist yet."""
+    marker, value = argument
+    if value < 0:
+        raise ValueError(f"bad value {value}")
+    if not Path(marker).exists():
+        Path(marker).write_text("failed once")
+        raise RuntimeError("first attempt fails")
+    return value + 1
+
+
+def report_text(folder: Path) -> str:
+    return re.sub(r'"seconds": [0-9.e+-]+', '"seconds": _', (folder / "report.json").read_text())
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_failed_tasks_run_once_more_and_results_keep_their_order(tmp_path, workers, capsys):
+    arguments = [(str(tmp_path / f"m{i}"), i) for i in range(3)]
+    assert run_tasks(flaky, arguments, ["a", "b", "c"], workers=workers, progress=False) == [1, 2, 3]
+    printed = capsys.readouterr()
+    assert (printed.out + printed.err).count("running it again") == 3
+    (tmp_path / "ok").write_text("")
+    with pytest.raises(TasksFailed) as failed:
+        run_tasks(flaky, [(str(tmp_path / "ok"), 5), (str(tmp_path / "ok"), -1)], ["good", "bad"],
+                  workers=workers, progress=False)
+    assert list(failed.value.failures) == ["bad"] and "bad value -1" in failed.value.failures["bad"]
+
+
+def test_processes_give_the_results_of_one_process():
+    assert run_tasks(square, list(range(7)), [str(i) for i in range(7)], workers=2, progress=False) == [
+        i * i for i in range(7)]
+
+
+def test_two_workers_write_the_sequential_report(tmp_path):
+    assert run.main([*ARGS, "--out", str(tmp_path / "one")]) == 0
+    assert run.main([*ARGS, "--out", str(tmp_path / "two"), "--workers", "2"]) == 0
+    assert report_text(tmp_path / "one") == report_text(tmp_path / "two")
+    for k in (1, 2):  # each task wrote its own complete fold folder and TensorBoard run
+        assert (tmp_path / "two" / f"fold{k}" / "learner.json").is_file()
+        assert list((tmp_path / "two" / "tensorboard" / f"fold{k}").glob("events.out.tfevents.*"))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
+def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
+    import ray
+
+    assert run.main([*ARGS, "--out", str(tmp_path / "one")]) == 0
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        assert run.main([*ARGS, "--out", str(tmp_path / "ray"), "--ray", "auto"]) == 0
+    finally:
+        ray.shutdown()
+    assert report_text(tmp_path / "one") == report_text(tmp_path / "ray")
+    assert json.loads((tmp_path / "ray" / "report.json").read_text())["folds"][1]["fold"] == 2
+
+
+def test_a_bad_worker_count_gets_one_line(tmp_path, capsys):
+    assert run.main([*ARGS, "--out", str(tmp_path / "x"), "--workers", "0"]) == 2
+    assert "--workers 0: expected at least 1" in capsys.readouterr().err

@@ -1,0 +1,159 @@
+"""Running independent tasks (folds, seeds) one after another, in local processes, or on a Ray cluster.
+
+A task is a picklable function and its argument; every task writes only its own run folder,
+so tasks cannot disturb one another, and the results come back in the order the tasks were
+given, whatever order they finish in. The report built from them is therefore the sequential
+one. A task that raises is reported and run once more; one that fails again is reported with
+its error, the others still finish, and :class:`TasksFailed` names every failure.
+
+- ``workers=1`` and no Ray: in this process, one after another.
+- ``workers=N``: N local processes (``spawn``), each with ``cores // N`` torch threads.
+- ``ray=ADDRESS``: Ray tasks of one CPU each (``ray.init(address=ADDRESS)``; ``local`` starts a
+  local instance with ``workers`` CPUs). Ray is an optional extra: ``pip install -e ".[distributed]"``.
+"""
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+
+import torch
+from tqdm import tqdm
+
+from ftorch.errors import InputError
+
+RETRIES = 1
+
+
+class TasksFailed(RuntimeError):
+    """Some tasks failed twice; ``failures`` maps each one's name to its last error."""
+
+    def __init__(self, failures: dict[str, str]):
+        self.failures = failures
+        super().__init__("; ".join(f"{name} failed twice: {error}" for name, error in failures.items()))
+
+
+class _Threaded:
+    """``function`` run with a fixed number of torch threads (picklable for worker processes)."""
+
+    def __init__(self, function: Callable, threads: int):
+        self.function, self.threads = function, threads
+
+    def __call__(self, argument):
+        torch.set_num_threads(self.threads)
+        return self.function(argument)
+
+
+def _one_thread(function: Callable, argument):
+    """A Ray task: ``function(argument)`` with one torch thread (Ray gives each task one CPU)."""
+    torch.set_num_threads(1)
+    return function(argument)
+
+
+def _describe(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
+
+
+def run_tasks(function: Callable, arguments: Sequence, names: Sequence[str], workers: int = 1,
+              ray: str | None = None, progress: bool = True) -> list:
+    """``[function(a) for a in arguments]``, run as the module docstring says."""
+    if workers < 1:
+        raise InputError(f"--workers {workers}: expected at least 1")
+    if ray is not None:
+        return _on_ray(function, arguments, names, workers, ray, progress)
+    if workers == 1 or len(arguments) == 1:
+        return _here(function, arguments, names)
+    return _in_processes(function, arguments, names, workers, progress)
+
+
+def _here(function: Callable, arguments: Sequence, names: Sequence[str]) -> list:
+    results, failures = [], {}
+    for argument, name in zip(arguments, names):
+        for attempt in range(RETRIES + 1):
+            try:
+                results.append(function(argument))
+                break
+            except (InputError, KeyboardInterrupt):
+                raise
+            except Exception as error:  # noqa: BLE001 - reported, retried once, then named
+                print(f"{name} failed ({_describe(error)}); {'running it again' if attempt < RETRIES else 'giving up'}")
+                if attempt == RETRIES:
+                    failures[name] = _describe(error)
+                    results.append(None)
+    if failures:
+        raise TasksFailed(failures)
+    return results
+
+
+def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str], workers: int, progress: bool) -> list:
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    call = _Threaded(function, threads)
+    results: list = [None] * len(arguments)
+    failures: dict[str, str] = {}
+    attempts = [0] * len(arguments)
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool, \
+            tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
+        pending = {pool.submit(call, a): i for i, a in enumerate(arguments)}
+        while pending:
+            future = next(as_completed(pending))
+            i = pending.pop(future)
+            try:
+                results[i] = future.result()
+                bar.update(1)
+            except InputError:
+                raise
+            except Exception as error:  # noqa: BLE001 - reported, retried once, then named
+                attempts[i] += 1
+                again = attempts[i] <= RETRIES
+                bar.write(f"{names[i]} failed ({_describe(error)}); {'running it again' if again else 'giving up'}")
+                if again:
+                    pending[pool.submit(call, arguments[i])] = i
+                else:
+                    failures[names[i]] = _describe(error)
+                    bar.update(1)
+    if failures:
+        raise TasksFailed(failures)
+    return results
+
+
+def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], workers: int, address: str,
+            progress: bool) -> list:
+    try:
+        import ray
+    except ImportError:
+        raise InputError("--ray needs Ray: pip install -e \".[distributed]\"") from None
+    started = not ray.is_initialized()
+    if started:
+        if address == "local":
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_one_thread)
+        refs = [remote.remote(function, a) for a in arguments]
+        index = {ref: i for i, ref in enumerate(refs)}
+        results: list = [None] * len(arguments)
+        failures: dict[str, str] = {}
+        todo = list(refs)
+        start = time.perf_counter()
+        with tqdm(total=len(refs), desc="ray tasks", unit="task", disable=not progress) as bar:
+            while todo:
+                done, todo = ray.wait(todo, num_returns=1)
+                i = index[done[0]]
+                try:
+                    results[i] = ray.get(done[0])
+                except Exception as error:  # noqa: BLE001 - Ray already ran it again (retry_exceptions)
+                    cause = getattr(error, "cause", None) or error
+                    failures[names[i]] = _describe(cause) if not isinstance(cause, str) else cause
+                    bar.write(f"{names[i]} failed twice on the cluster: {failures[names[i]]}")
+                bar.update(1)
+        if failures:
+            raise TasksFailed(failures)
+        if progress:
+            print(f"{len(refs)} Ray tasks in {time.perf_counter() - start:.1f} s")
+        return results
+    finally:
+        if started:
+            ray.shutdown()
