@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from ftorch.errors import InputError
+from ftorch.images import load_image
 from training.datasets import coil_task, folder_task, load_task, plym_task
 from training.plym import OBJECTS, VIEWS, render, solid
 
@@ -32,6 +33,25 @@ def test_coil_files_are_found_in_the_original_nested_layout_at_any_size(tmp_path
     assert len(task.images) == 8 and task.images[0].name == "obj1__0.png"
     with pytest.raises(InputError, match=r"obj3__0.png not found"):
         coil_task(tmp_path, classes=3, views=4)
+
+
+def test_coil_size_area_averages_to_the_shared_32_pixel_images(coil_dir):
+    full = coil_dir.parent / "coil-20-128"
+    if not full.is_dir():
+        pytest.skip(f"COIL data (../shared/data/coil-20-128) not found at {full}")
+    reduced = coil_task(full, classes=2, views=3, size=32)
+    stored = coil_task(coil_dir, classes=2, views=3)
+    for image, path in zip(reduced.images, stored.images):
+        assert image.shape == (32, 32)
+        # coil-20-32 holds the 4x4 block means rounded to 8 bits
+        assert float((image - load_image(path)).abs().max()) <= 0.5 / 255 + 1e-6
+    assert load_task("coil", full, 2, 3, size=128).images[0].shape == (128, 128)
+    with pytest.raises(InputError, match="can only reduce"):
+        coil_task(coil_dir, classes=2, views=2, size=64)
+    with pytest.raises(InputError, match="at least 8 pixels"):
+        coil_task(coil_dir, classes=2, views=2, size=0)
+    with pytest.raises(InputError, match="not to class folders"):
+        load_task("folder", coil_dir, size=16)
 
 
 def test_folder_task_and_its_errors(tmp_path):
