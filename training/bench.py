@@ -5,8 +5,9 @@ Everything is measured in one run against baselines computed in the same run:
   ``cv2.sepFilter2D`` with the very same sampled kernels (same radius, same reflect border);
   both are checked against scipy at the tests' tolerance on one image.
 - record: the whole per-image record (pyramid, scale functions, salient points, descriptors).
-- texel / geometric3 / boolean: (feature, image) evaluations per second, and the ratio to the
-  per-point reference loop of ``ftorch.reference`` timed on a subset.
+- texel / edgel_pair / edgel3 / geometric3 / boolean: (feature, image) evaluations per second,
+  the ratio to the per-point reference loop of ``ftorch.reference`` timed on a subset, and the
+  largest difference between the two there.
 Timings are the best of several repeats after a warm-up.
 
 ``python -m training.bench recognition [--quick] --json PATH`` times the inner loop of alg. 4.4:
@@ -33,7 +34,7 @@ from ftorch import FeatureSpace, ScaleSpace
 from ftorch.bayes import ClassNetwork, information
 from ftorch.evaluate import feature_values
 from ftorch.features import Conjunction, Disjunction
-from ftorch.generate import expand_geometric, random_texel
+from ftorch.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.kernels import derivative_kernels
 from ftorch.reference import reference_values, scipy_basis
 from training.builtin import builtin_scene
@@ -130,16 +131,18 @@ def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> d
 
 
 def evaluation_section(features, records, repeats: int, device: torch.device, reference_features, reference_images) -> dict:
-    seconds, _ = _timed(lambda: feature_values(features, records), repeats, device)
+    seconds, ours = _timed(lambda: feature_values(features, records), repeats, device)
     evals = len(features) * len(records)
     cpu_records = records[: reference_images].to("cpu")
     start = time.perf_counter()
-    reference_values(features[:reference_features], cpu_records)
+    expected = reference_values(features[:reference_features], cpu_records)
     ref_seconds = time.perf_counter() - start
     ref_rate = reference_features * reference_images / ref_seconds
     rate = evals / seconds
+    found = ours.values[:reference_features, :reference_images].double().cpu().numpy()
     return {"features": len(features), "images": len(records), "evals_per_s": rate,
-            "reference_evals_per_s": ref_rate, "ratio_vs_reference": rate / ref_rate}
+            "reference_evals_per_s": ref_rate, "ratio_vs_reference": rate / ref_rate,
+            "max_error_vs_reference": float(np.abs(found - expected).max())}
 
 
 def features(args) -> dict:
@@ -164,7 +167,11 @@ def features(args) -> dict:
     geometric3 = [expand_geometric(expand_geometric(t, records, i % len(records), g), records, i % len(records), g)
                   for i, t in enumerate(texels[: n_feat // 2])]
     boolean = [(Conjunction if i % 2 else Disjunction)(texels[i], geometric3[i]) for i in range(n_feat // 2)]
+    pairs = [random_edgel_pair(records, i % len(records), g) for i in range(n_feat)]
+    edgel3 = [expand_geometric(p, records, i % len(records), g) for i, p in enumerate(pairs[: n_feat // 2])]
     ref_images = 2
+    report["edgel_pair"] = evaluation_section(pairs, records, repeats, device, 2, ref_images)
+    report["edgel3"] = evaluation_section(edgel3, records, repeats, device, 2, ref_images)
     report["texel"] = evaluation_section(texels, records, repeats, device, 4, ref_images)
     report["geometric3"] = evaluation_section(geometric3, records, repeats, device, 2, ref_images)
     report["boolean"] = evaluation_section(boolean, records, repeats, device, 2, ref_images)
@@ -248,10 +255,10 @@ def print_report(report: dict) -> None:
     r = report["record"]
     print(f"record    {r['images_per_s']:8.1f} images/s  ({r['texels_per_image']:.0f} texels, "
           f"{r['edgels_per_image']:.0f} edgels per image)")
-    for key in ("texel", "geometric3", "boolean"):
+    for key in ("texel", "edgel_pair", "edgel3", "geometric3", "boolean"):
         e = report[key]
         print(f"{key:10s}{e['evals_per_s']:10.0f} evals/s  reference {e['reference_evals_per_s']:8.2f}  "
-              f"ratio {e['ratio_vs_reference']:.0f}")
+              f"ratio {e['ratio_vs_reference']:.0f}  max error vs reference {e['max_error_vs_reference']:.1e}")
 
 
 def main(argv: list[str] | None = None) -> int:
