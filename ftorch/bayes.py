@@ -84,11 +84,11 @@ class _Tables(dict):
 
     def __setitem__(self, key, value):
         super().__setitem__(key, np.asarray(value, dtype=float))
-        self._network._compiled = self._network._blank = None
+        self._network._compiled = None
 
     def __delitem__(self, key):
         super().__delitem__(key)
-        self._network._compiled = self._network._blank = None
+        self._network._compiled = None
 
 
 class _Group:
@@ -117,10 +117,15 @@ class _Group:
         return (self.codes & self.weights[observed].sum()) == (self.weights * (own > 0)).sum()
 
 
+MEMO_LIMIT = 4096  # evidence states remembered per compiled network
+
+
 class _Compiled:
-    """Arc-free nodes stacked for the closed form; linked groups compiled (see module doc)."""
+    """Arc-free nodes stacked for the closed form; linked groups compiled (see module doc); the
+    results of :meth:`ClassNetwork.evaluate` by evidence state (``memo``)."""
 
     def __init__(self, network: "ClassNetwork"):
+        self.memo: dict[bytes, tuple[float, np.ndarray]] = {}
         linked = {p for ps in network.parents.values() for p in ps} | {f for f, ps in network.parents.items() if ps}
         self.singles = np.array([i for i, k in enumerate(network.features) if k not in linked], dtype=np.int64)
         self.single_cpt = (np.stack([network.cpt[network.features[i]] for i in self.singles])
@@ -168,7 +173,6 @@ class ClassNetwork:
         self.parents: dict[Hashable, list[Hashable]] = {}
         self.threshold: dict[Hashable, float] = {}
         self._compiled: _Compiled | None = None
-        self._blank: tuple[float, np.ndarray] | None = None
         self.prior = np.array([0.5, 0.5])
         self.cpt: dict[Hashable, np.ndarray] = _Tables(self)  # P(F | class, parents...) indexed [c, p1..pk, f]
 
@@ -183,7 +187,7 @@ class ClassNetwork:
     @prior.setter
     def prior(self, value) -> None:
         self._prior = np.asarray(value, dtype=float)
-        self._blank = None
+        self._compiled = None
 
     def add_feature(self, key: Hashable, parents=(), children=(), threshold: float = 0.5) -> None:
         """Add a feature node with an arc from the class node and the given feature arcs."""
@@ -287,11 +291,19 @@ class ClassNetwork:
     def evaluate(self, state: np.ndarray) -> tuple[float, np.ndarray]:
         """(P(class present | e), I(C, F | e) in bits for every feature node (F,), 0 where observed), eq. 4.2.
 
-        The result for empty evidence is cached until the prior or a CPT changes.
+        Results are remembered per evidence state until the prior or a CPT changes (recognition
+        meets the same states again and again); the returned array must not be modified.
         """
-        blank = not (state >= 0).any()
-        if blank and self._blank is not None:
-            return self._blank
+        c = self.compiled()
+        key = state.tobytes()
+        if key not in c.memo:
+            if len(c.memo) >= MEMO_LIMIT:
+                c.memo.clear()
+            c.memo[key] = self.infer(state)
+        return c.memo[key]
+
+    def infer(self, state: np.ndarray) -> tuple[float, np.ndarray]:
+        """:meth:`evaluate` computed afresh: the exact factorised inference of the module docstring."""
         c = self.compiled()
         weight, likes = self._factors(state)
         joint = weight * likes.prod(0)
@@ -318,10 +330,7 @@ class ClassNetwork:
             else:
                 both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
             out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
-        result = (float(posterior[1]), out)
-        if blank:
-            self._blank = result
-        return result
+        return float(posterior[1]), out
 
     def joint(self, evidence: dict[Hashable, int], query: Hashable | None = None) -> np.ndarray:
         """P(class | evidence) (2,), or P(class, query | evidence) (2, 2) for an unobserved feature.

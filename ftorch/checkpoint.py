@@ -29,7 +29,7 @@ MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
 
 def _compress(raw: bytes) -> str:
-    return base64.b64encode(zlib.compress(raw, 1)).decode("ascii")
+    return base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
 
 
 def _inflate(text, size: int) -> bytes:

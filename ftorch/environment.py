@@ -1,7 +1,8 @@
 """The task environment the learner acts in (4.4): labelled images, their records and feature values.
 
 Feature values are cached: each (feature, image) value is computed once, in one batch with the
-other values missing at that call, and never recomputed. Batched float arithmetic may differ
+other values missing at that call, and never recomputed. A call for one image (a recognition)
+computes its missing features on all images of the set. Batched float arithmetic may differ
 in the last bit with the batch's composition, so this rule is what makes a run reproducible and
 resumable bit for bit: the cache is part of a run's state (:meth:`ImageSet.cache_state`).
 """
@@ -82,15 +83,21 @@ class ImageSet:
         missing = [features[j] for j in np.flatnonzero(np.isnan(block).any(1))]
         if missing:
             missing = list(dict.fromkeys(missing))
-            computed = self._compute(missing, images)
+            # one image asked for (a recognition): measure the missing features on every image at
+            # once, since recognizing the others will ask for them too and a batch costs far less
+            batch = list(range(len(self))) if len(images) == 1 else images
+            computed = self._compute(missing, batch)
             for f, row in zip(missing, computed):
-                current = self._cache[self._row[f], images]
-                self._cache[self._row[f], images] = np.where(np.isnan(current), row, current)
+                current = self._cache[self._row[f], batch]
+                self._cache[self._row[f], batch] = np.where(np.isnan(current), row, current)
             block = self._cache[np.ix_(rows, images)]
         return block
 
     def _compute(self, features: list[Feature], images: list[int]) -> np.ndarray:
-        records = self.record(images[0]) if len(images) == 1 else self.records(images)
+        if len(images) == 1:
+            records = self.record(images[0])
+        else:
+            records = self.all_records if images == list(range(len(self))) else self.records(images)
         return feature_values(features, records).values.double().cpu().numpy()
 
     def cache_state(self, table: FeatureTable | None = None) -> dict:

@@ -92,6 +92,26 @@ def test_assigning_a_cpt_or_prior_takes_effect():
     assert net.posterior({}) == pytest.approx(0.25)
 
 
+def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the_network_changes():
+    rng = np.random.default_rng(5)
+    net = random_network(rng, 7)
+    states = [np.where(rng.random(7) < 0.5, rng.integers(0, 2, 7), -1) for _ in range(40)]
+    for state in states + states:  # the second pass is answered from memory
+        posterior, info = net.evaluate(state)
+        fresh = net.infer(state)
+        assert posterior == fresh[0] and np.array_equal(info, fresh[1])
+    assert len(net.compiled().memo) == len({s.tobytes() for s in states})
+    state = states[0]
+    before = net.evaluate(state)[0]
+    net.prior = net.prior[::-1].copy()
+    assert len(net.compiled().memo) == 0 and net.evaluate(state)[0] == net.infer(state)[0] != before
+    net.cpt[3] = np.full_like(net.cpt[3], 0.5)
+    assert len(net.compiled().memo) == 0
+    net.add_feature(7, parents=[2])
+    longer = np.append(state, -1)
+    assert net.evaluate(longer)[0] == net.infer(longer)[0] and len(net.evaluate(longer)[1]) == 8
+
+
 def test_mutual_information_vanishes_for_observed_or_certain_classes():
     rng = np.random.default_rng(1)
     net = random_network(rng, 4)

@@ -11,8 +11,8 @@ Everything is measured in one run against baselines computed in the same run:
 Timings are the best of several repeats after a warm-up.
 
 ``python -m training.bench recognition [--quick] --json PATH`` times the inner loop of alg. 4.4:
-one ``ClassNetwork.evaluate`` (the posterior and the mutual information of every unobserved
-feature) on networks shaped like learned ones (16 feature nodes: a geometric chain with a
+one ``ClassNetwork.infer`` (the posterior and the mutual information of every unobserved
+feature: ``evaluate`` without its memory of evidence states) on networks shaped like learned ones (16 feature nodes: a geometric chain with a
 conjunction, a disjunction, and arc-free nodes), for random evidence. Baselines in the same
 run: the same network with every linked group contracted by einsum, and pgmpy's
 VariableElimination (one query for the class and one per unobserved feature); all three are
@@ -207,8 +207,8 @@ def recognition(args) -> dict:
     states = [np.where(rng.random(n) < 0.4, rng.integers(0, 2, n), -1) for _ in range(200 if args.quick else 1000)]
     device = torch.device("cpu")
     repeats = 3 if args.quick else 5
-    (fast, ours), (slow, theirs) = _interleaved([lambda: [net.evaluate(x) for x in states],
-                                                 lambda: [einsum.evaluate(x) for x in states]], repeats, device)
+    (fast, ours), (slow, theirs) = _interleaved([lambda: [net.infer(x) for x in states],
+                                                 lambda: [einsum.infer(x) for x in states]], repeats, device)
     model = VariableElimination(net.to_pgmpy())
     name = {k: f"f{i}" for i, k in enumerate(net.features)}
     few = states[:10 if args.quick else 30]
