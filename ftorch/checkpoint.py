@@ -3,7 +3,8 @@
 A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 2, ...}. Floats
 are written as Python's shortest exact repr; arrays as zlib-compressed little-endian float32
 where that holds every value exactly (feature values are computed in float32), else float64,
-in base64; long texts (feature tables) as zlib-compressed UTF-8 in base64. So a state
+in base64 blocks of ``ROWS`` rows (a block unchanged since the last checkpoint is not compressed
+again); long texts (feature tables) as zlib-compressed UTF-8 in base64. So a state
 survives a round trip bit for bit. Compressed data are inflated only up to the size their
 declared shape allows (``MAX_BYTES`` at most): a small damaged or hostile file cannot blow up. Writing goes to a temporary
 file in the same folder, flushed and fsynced, then renamed over the target: a crash leaves
@@ -17,6 +18,7 @@ import json
 import os
 import tempfile
 import zlib
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +30,19 @@ VERSION = 2
 MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
 
+ROWS = 1024  # rows per compressed block of an array
+_blocks: OrderedDict = OrderedDict()  # raw bytes -> compressed block, the most recent 256
+
+
 def _compress(raw: bytes) -> str:
-    return base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
+    """Compressed bytes in base64; blocks met again (unchanged rows of a growing table) are reused."""
+    block = _blocks.get(raw)
+    if block is None:
+        block = base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
+        _blocks[raw] = block
+        if len(_blocks) > 256:
+            _blocks.popitem(last=False)
+    return block
 
 
 def _inflate(text, size: int) -> bytes:
@@ -45,11 +58,13 @@ def _inflate(text, size: int) -> bytes:
 
 def encode_array(array: np.ndarray) -> dict:
     """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes."""
-    data = np.ascontiguousarray(array, dtype="<f8")
+    data = np.require(array, dtype="<f8", requirements="C")  # keeps 0-d arrays 0-d
     narrow = data.astype("<f4")
     if np.array_equal(narrow.astype("<f8"), data, equal_nan=True):
         data = narrow
-    return {"shape": list(data.shape), "dtype": data.dtype.str, "data": _compress(data.tobytes())}
+    rows = data.reshape(len(data), int(np.prod(data.shape[1:]))) if data.ndim else data.reshape(1, 1)
+    return {"shape": list(data.shape), "dtype": data.dtype.str,
+            "blocks": [_compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]}
 
 
 def decode_array(data: dict) -> np.ndarray:
@@ -59,7 +74,15 @@ def decode_array(data: dict) -> np.ndarray:
         dtype = np.dtype({"<f4": "<f4", "<f8": "<f8"}[data["dtype"]])
         if any(v < 0 for v in shape):
             raise ValueError(f"negative shape {shape}")
-        flat = np.frombuffer(_inflate(data["data"], int(np.prod(shape)) * dtype.itemsize), dtype=dtype)
+        n_rows = shape[0] if shape else 1
+        row_bytes = (int(np.prod(shape[1:])) if shape else 1) * dtype.itemsize
+        blocks = data["blocks"]
+        if not isinstance(blocks, list) or len(blocks) != max(1, -(-n_rows // ROWS)):
+            raise ValueError(f"{len(blocks) if isinstance(blocks, list) else 'no'} blocks for {n_rows} rows")
+        if n_rows * row_bytes > MAX_BYTES:
+            raise ValueError(f"declares {n_rows * row_bytes} bytes, more than the {MAX_BYTES} a checkpoint may hold")
+        raw = b"".join(_inflate(b, min(ROWS, n_rows - k * ROWS) * row_bytes) for k, b in enumerate(blocks))
+        flat = np.frombuffer(raw, dtype=dtype)
     except (KeyError, TypeError, ValueError, zlib.error) as err:
         raise ValueError(f"damaged array ({err})") from None
     return flat.reshape(shape).astype(np.float64)

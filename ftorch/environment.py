@@ -105,7 +105,7 @@ class ImageSet:
         table of its own, written as "table"), and the exact values."""
         own = table is None
         table = FeatureTable() if own else table
-        features = sorted(self._row, key=self._row.__getitem__)
+        features = list(self._row)  # in row order: rows are only ever added
         state = {"features": [table.index(f) for f in features], "values": encode_array(self._cache[: len(features)])}
         if own:
             state["table"] = table.pack()

@@ -97,8 +97,7 @@ class GraspFeatureSet:
         self._source_index: dict[int, int] = {}  # id of a stored (hence live) records object -> its source
         self._source_of_row: list[int] = []
         self._batch: ImageRecords | None = None
-        self._version = 0  # changes whenever the features do
-        self._measured: tuple | None = None  # (records, version, values, thetas) of the last measure
+        self._measured: tuple | None = None  # (records, values, thetas) of the last measure; None once features change
         self.values = np.zeros((0, 0))
         self.thetas = np.zeros((0, 0))
         self.theta_H = np.zeros(0)
@@ -114,13 +113,13 @@ class GraspFeatureSet:
         """Values and orientations (F,) of every feature of the set in one image (step 2a). The last
         result is kept: recommending, trying and learning on one image measure it once."""
         last = self._measured
-        if last is not None and last[0] is records and last[1] == self._version:
-            return last[2], last[3]
+        if last is not None and last[0] is records:
+            return last[1], last[2]
         if not self.features:
             return np.zeros(0), np.zeros(0)
         found = feature_values(self.features, records)
         values, thetas = found.values[:, 0].double().cpu().numpy(), found.theta[:, 0].double().cpu().numpy()
-        self._measured = (records, self._version, values, thetas)
+        self._measured = (records, values, thetas)
         return values, thetas
 
     def choose(self, values: np.ndarray) -> int | None:
@@ -169,7 +168,7 @@ class GraspFeatureSet:
             self.values = np.zeros((0, len(self.features) + len(features)))
             self.thetas = np.zeros((0, len(self.features) + len(features)))
         self.features += features
-        self._version += 1
+        self._measured = None
         self.models += [None] * len(features)
         self.born += [self.grasps] * len(features)
         self.used += [-1] * len(features)
@@ -183,7 +182,7 @@ class GraspFeatureSet:
             for name in ("features", "models", "born", "used"):
                 setattr(self, name, [getattr(self, name)[j] for j in keep])
             self.values, self.thetas = self.values[:, keep], self.thetas[:, keep]
-            self._version += 1
+            self._measured = None
         return dropped
 
     def fit(self, t_dtheta: float, max_k: int, min_points: int) -> None:

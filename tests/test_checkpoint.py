@@ -6,7 +6,7 @@ import zlib
 import numpy as np
 import pytest
 
-from ftorch.checkpoint import MAX_BYTES, decode_array, decode_text, encode_array, encode_text
+from ftorch.checkpoint import MAX_BYTES, ROWS, decode_array, decode_text, encode_array, encode_text
 from ftorch.features import CHUNK, Conjunction, FeatureTable, Geometric, Part, Texel, unpack_features
 
 
@@ -20,16 +20,26 @@ def test_arrays_round_trip_exactly_in_float32_where_that_is_exact():
     assert encode_array(wide)["dtype"] == "<f8" and np.array_equal(decode_array(encode_array(wide)), wide, equal_nan=True)
 
 
+def test_large_arrays_go_in_blocks_and_empty_ones_round_trip():
+    values = np.arange(3 * ROWS * 2, dtype=np.float64).reshape(3 * ROWS, 2)[: 2 * ROWS + 5]
+    packed = encode_array(values)
+    assert len(packed["blocks"]) == 3 and np.array_equal(decode_array(packed), values)
+    for empty in (np.zeros((0, 4)), np.zeros((5, 0)), np.zeros(0), np.array(2.5)):
+        assert np.array_equal(decode_array(encode_array(empty)), empty)
+
+
 def test_inflation_stops_at_the_declared_size():
-    bomb = {"shape": [4], "dtype": "<f8", "data": base64.b64encode(zlib.compress(bytes(10**7))).decode()}
+    bomb = {"shape": [4], "dtype": "<f8", "blocks": [base64.b64encode(zlib.compress(bytes(10**7))).decode()]}
     with pytest.raises(ValueError, match="other than the 32 bytes"):
         decode_array(bomb)
     with pytest.raises(ValueError, match="more than the"):
-        decode_array({"shape": [MAX_BYTES], "dtype": "<f8", "data": bomb["data"]})
+        decode_array({"shape": [MAX_BYTES, 1], "dtype": "<f8", "blocks": bomb["blocks"] * (MAX_BYTES // ROWS)})
     with pytest.raises(ValueError, match="negative shape"):
-        decode_array({"shape": [-1, 4], "dtype": "<f8", "data": bomb["data"]})
+        decode_array({"shape": [-1, 4], "dtype": "<f8", "blocks": bomb["blocks"]})
+    with pytest.raises(ValueError, match="2 blocks for 4 rows"):
+        decode_array({"shape": [4], "dtype": "<f8", "blocks": bomb["blocks"] * 2})
     with pytest.raises(ValueError, match="damaged array"):
-        decode_array({"shape": [4], "dtype": "object", "data": bomb["data"]})
+        decode_array({"shape": [4], "dtype": "object", "blocks": bomb["blocks"]})
     text = encode_text("features " * 1000)
     assert decode_text(text) == "features " * 1000
     with pytest.raises(ValueError, match="damaged text"):
