@@ -129,6 +129,8 @@ def load_checkpoint(path, kind: str) -> dict:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"{path}: not a readable checkpoint (truncated or not JSON: {err})") from None
+    except RecursionError:
+        raise InputError(f"{path}: not a readable checkpoint (JSON nested too deeply)") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"{path}: not an ftorch checkpoint")
     if data.get("kind") != kind:

@@ -6,7 +6,8 @@ import zlib
 import numpy as np
 import pytest
 
-from ftorch.checkpoint import MAX_BYTES, ROWS, decode_array, decode_text, encode_array, encode_text
+from ftorch.checkpoint import MAX_BYTES, ROWS, decode_array, decode_text, encode_array, encode_text, load_checkpoint
+from ftorch.errors import InputError
 from ftorch.features import CHUNK, Conjunction, FeatureTable, Geometric, Part, Texel, unpack_features
 
 
@@ -78,3 +79,13 @@ def test_a_grown_table_packs_to_what_a_fresh_one_packs():
     assert grown.pack() == fresh.pack() and len(grown.pack()["blocks"]) == 3
     assert grown.pack()["blocks"][0] is first["blocks"][0]  # the full first block was packed once
     assert unpack_features(grown.pack()) == features
+
+
+def test_a_deeply_nested_or_old_checkpoint_file_gets_one_line(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(InputError, match="nested too deeply"):
+        load_checkpoint(path, "fold")
+    path.write_text(json.dumps({"format": "ftorch", "kind": "fold", "version": 1}))
+    with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads version 2"):
+        load_checkpoint(path, "fold")
