@@ -40,13 +40,9 @@ def sample_primitives(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor
         chosen = ((kind == EDGEL) == edgel).nonzero()[:, 0]
         if len(chosen):
             values, ok = sample_part(records, image[chosen], x[chosen], y[chosen], sigma[chosen], edgel)
-            out[chosen[:, None], EDGEL_COLUMNS if edgel else ALL_COLUMNS] = values
+            out[chosen, EDGEL_SLOTS if edgel else slice(None)] = values
             valid[chosen] = ok
     return out, valid
-
-
-EDGEL_COLUMNS = torch.arange(15)[EDGEL_SLOTS]
-ALL_COLUMNS = torch.arange(15)
 
 
 def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,
