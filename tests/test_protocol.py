@@ -19,7 +19,7 @@ from ftorch.learner import DistinctiveFeatureLearner
 from training import run
 from training.datasets import Task, plym_task
 from training.protocol import Fold, next_target
-from training.report import seed_study
+from training.report import growth, seed_study
 
 CONFIG = {"task": "plym4", "seed": 0, "n_ex": 5, "n_fgen": 10}
 
@@ -232,6 +232,21 @@ def test_incremental_fold_adds_one_class_at_a_time(small_task, tmp_path):
     assert [(a["classes"], a["class"]) for a in entry["added"]] == [(2, classes[1]), (3, classes[2]), (4, classes[3])]
     assert sum(a["sampled"] for a in entry["added"]) == learner.sampled == stages[-1]["features"]["sampled"]
     assert sorted(learner.networks) == sorted(classes)
+
+
+def test_growth_exponent_of_figure_5_19_recovers_a_known_power_law():
+    classes = list(range(2, 21))
+    folds = []
+    for k, (a, b) in enumerate([(40.0, 1.6), (55.0, 1.6)], 1):
+        totals = [round(a * c**b) for c in classes]  # features are counted: the power law to the nearest count
+        steps = np.diff([0, *totals])
+        folds.append({"fold": k, "added": [{"classes": c, "sampled": int(n)} for c, n in zip(classes, steps)]})
+    g = growth(folds)
+    assert g["folds"]["1"]["exponent"] == pytest.approx(1.6, abs=2e-3) == g["folds"]["2"]["exponent"]
+    assert g["points"] == 2 * len(classes) and g["interval"][0] < 1.6 < g["interval"][1]
+    line = stats.linregress(np.log(classes * 2), np.log([p[1] for k in ("1", "2") for p in g["sampled"][k]]))
+    assert g["exponent"] == pytest.approx(line.slope)
+    assert g["interval"][1] - g["interval"][0] == pytest.approx(2 * stats.t.ppf(0.975, 2 * len(classes) - 2) * line.stderr)
 
 
 def test_seed_study_is_a_paired_one_tailed_t_test():

@@ -50,7 +50,28 @@ def build_report(config: dict, device: str, seconds: float, folds: list[dict], s
               "average": {"stage0": average(folds, 0), "final": average(folds, -1)}}
     if seeds is not None:
         report["seeds"] = seeds
+    if folds and all(f.get("added") for f in folds):
+        report["growth"] = growth(folds)
     return report
+
+
+def growth(folds: list[dict]) -> dict:
+    """Figure 5.19: features sampled so far against the number of classes taught, and the exponent b
+    of sampled ~ a * classes**b fitted by least squares on log-log over the points of every fold
+    (each fold's own fit too), with a 95% interval from the slope's standard error (t, n - 2 df)."""
+    def fit(points: list[tuple[int, int]]) -> dict:
+        x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
+        line = stats.linregress(x, y)
+        half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else math.nan
+        return {"exponent": float(line.slope), "interval": [float(line.slope) - half, float(line.slope) + half],
+                "points": len(points)}
+
+    curves = {f["fold"]: [(a["classes"], int(total)) for a, total in
+                          zip(f["added"], np.cumsum([a["sampled"] for a in f["added"]]))] for f in folds}
+    pooled = [p for points in curves.values() for p in points]
+    out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): fit(v) for k, v in curves.items()}}
+    out.update(fit(pooled) if len(pooled) > 1 else {"exponent": math.nan, "interval": [math.nan, math.nan], "points": len(pooled)})
+    return out
 
 
 def seed_study(runs: list[dict], seeds: list[int]) -> dict:
@@ -211,6 +232,12 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
             lines += [f"## Fold {f['fold']}: every stage (t_KSD in bold where the target was met)", "", *stage_table(f), ""]
     if incremental:
         lines += ["## Features sampled per added class (figure 5.13 form)", "", *added_table(report["folds"]), ""]
+        if "growth" in report:
+            g = report["growth"]
+            lines += ["## Growth of the features sampled with the classes (figure 5.19)", "",
+                      f"sampled so far ~ classes^b: b = {g['exponent']:.2f} (95% interval {g['interval'][0]:.2f} "
+                      f"to {g['interval'][1]:.2f}, {g['points']} points of all folds; b > 1 is superlinear); per fold: "
+                      + ", ".join(f"fold {k} {v['exponent']:.2f}" for k, v in g["folds"].items()), ""]
     if "seeds" in report:
         s = report["seeds"]
         lines += [f"## Seeds (figure 5.5 form): fold {s['fold']}, seeds {s['seeds'][0]}-{s['seeds'][-1]}", "",
