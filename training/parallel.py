@@ -17,6 +17,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import partial
 from multiprocessing import get_context
 
 import torch
@@ -35,20 +36,10 @@ class TasksFailed(RuntimeError):
         super().__init__("; ".join(f"{name} failed twice: {error}" for name, error in failures.items()))
 
 
-class _Threaded:
-    """``function`` run with a fixed number of torch threads (picklable for worker processes)."""
-
-    def __init__(self, function: Callable, threads: int):
-        self.function, self.threads = function, threads
-
-    def __call__(self, argument):
-        torch.set_num_threads(self.threads)
-        return self.function(argument)
-
-
-def _one_thread(function: Callable, argument):
-    """A Ray task: ``function(argument)`` with one torch thread (Ray gives each task one CPU)."""
-    torch.set_num_threads(1)
+def _with_threads(function: Callable, threads: int, argument):
+    """``function(argument)`` with ``threads`` torch threads: the body of a worker process's or a
+    Ray task's call (module level, so both can pickle it)."""
+    torch.set_num_threads(threads)
     return function(argument)
 
 
@@ -89,7 +80,7 @@ def _here(function: Callable, arguments: Sequence, names: Sequence[str]) -> list
 
 def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str], workers: int, progress: bool) -> list:
     threads = max(1, (os.cpu_count() or 1) // workers)
-    call = _Threaded(function, threads)
+    call = partial(_with_threads, function, threads)
     results: list = [None] * len(arguments)
     failures: dict[str, str] = {}
     attempts = [0] * len(arguments)
@@ -131,8 +122,8 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
         else:
             ray.init(address=address, log_to_driver=False)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_one_thread)
-        refs = [remote.remote(function, a) for a in arguments]
+        remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_with_threads)
+        refs = [remote.remote(function, 1, a) for a in arguments]  # Ray gives each task one CPU
         index = {ref: i for i, ref in enumerate(refs)}
         results: list = [None] * len(arguments)
         failures: dict[str, str] = {}

@@ -218,8 +218,8 @@ def recognize_command(args, incremental: bool = False) -> int:
     try:
         results = run_tasks(fold_task, jobs, names, args.workers, args.ray, progress=not args.quiet)
     except TasksFailed as failed:
-        raise InputError(f"{len(failed.failures)} of {len(jobs)} tasks failed twice ({failed}); the folders of "
-                         f"the others are complete in {out}") from None
+        raise InputError(f"{len(failed.failures)} of {len(jobs)} tasks failed twice ({failed}); "
+                         f"the other tasks' folders in {out} are complete") from None
     folds = [r["entry"] for r in results[: args.folds]]
     figures = [f for r in results[: args.folds] for f in r["figures"]]
     for k, entry in enumerate(folds, 1):
