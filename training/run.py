@@ -167,12 +167,17 @@ def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndar
 _TASKS: dict[tuple, Task] = {}  # data sets loaded in this process, by their load_task arguments
 
 
+def _task_key(args) -> tuple:
+    """The load_task arguments of a run, in load_task's order."""
+    return args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view
+
+
 def fold_task(job: dict) -> dict:
     """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
     class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
     Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
-    key = (args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
+    key = _task_key(args)
     if key not in _TASKS:
         _TASKS.clear()
         _TASKS[key] = load_task(*key)
@@ -201,9 +206,9 @@ def recognize_command(args, incremental: bool = False) -> int:
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information)  # refuses bad parameters early
     start = time.perf_counter()
     torch.manual_seed(args.seed)
-    task = load_task(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
+    task = load_task(*_task_key(args))
     _TASKS.clear()
-    _TASKS[(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)] = task
+    _TASKS[_task_key(args)] = task
     name = f"{task.name}-inc" if incremental else task.name
     out = Path(args.out or f"runs/{name}")
     logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
