@@ -226,8 +226,12 @@ class ClassNetwork:
                     todo.append(child)
         return out
 
-    def estimate(self, present: np.ndarray, states: dict[Hashable, np.ndarray]) -> None:
-        """Count prior and CPTs from instances: ``present`` (n,) bool, ``states`` key -> (n,) in {0, 1, -1 unknown}."""
+    def estimate(self, present: np.ndarray, states: dict[Hashable, np.ndarray], pseudocount: float = 0.0) -> None:
+        """Count prior and CPTs from instances: ``present`` (n,) bool, ``states`` key -> (n,) in {0, 1, -1 unknown}.
+
+        CPT entries are relative frequencies (4.4.1; ``pseudocount`` 0) or, with a pseudocount a > 0,
+        (count + a) / (total + 2a) (Laplace's rule for a = 1), so that no state seen zero times in
+        training makes a class impossible; a parent configuration never seen gives 1/2 either way."""
         present = np.asarray(present, dtype=bool)
         self.prior = np.array([0.5, 0.5]) if len(present) == 0 else np.array([1 - present.mean(), present.mean()])
         for key in self.features:
@@ -238,7 +242,7 @@ class ClassNetwork:
                 index = index * 2 + c[known]
             counts = np.bincount(index, minlength=2 ** len(columns)).reshape((2,) * len(columns)).astype(float)
             total = counts.sum(-1, keepdims=True)
-            self.cpt[key] = np.where(total > 0, counts / np.maximum(total, 1), 0.5)
+            self.cpt[key] = np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5)
 
     # -- exact inference -----------------------------------------------------------------------
     def compiled(self) -> _Compiled:

@@ -18,12 +18,29 @@ Decisions the text leaves open:
   ambiguous case, where the feature is sampled from an example image of that false class).
 - Nodes are discretized against the classes they were learned to discriminate (all other
   classes where none is recorded); a node whose KSD has no cut-point keeps its threshold.
-- Alg. 5.1 calls alg. 4.10 "until" a candidate reaches t_KSD; here one presentation tries each
-  method's n_fgen candidates once (bounded work); the next presentation of the image tries again.
+- Alg. 5.1 calls alg. 4.10 "until" a candidate reaches t_KSD. A search here calls it (the five
+  methods, n_fgen candidates each) up to ``search_rounds`` times and stops at the first candidate
+  accepted; a candidate that failed is not tried again in the same search. The cap ends a
+  hopeless search (a pair that no feature near the sample image separates) so that the stage's
+  cycle limit, not one image, bounds the work; ``search_rounds=1`` is one call per presentation.
   An expert feature is accepted when it reaches t_KSD and the image is still recognized correctly.
 - KSD_{c,d}(f) of alg. 5.2 is the distinctive power of node f at the cut-point it has in c's
   network, between instances of c and instances of d that are not of c (``ksd.distinctive_at``);
   a class with no consulted feature of its own scores 0 against every d.
+
+Options for generalization beyond the thesis (each default is the thesis's behaviour):
+- ``redundancy`` k (7.2.4): a distinction c-vs-d that an image needs is *carried* by k features:
+  alg. 5.2 scores a pair by its support, the k-th largest KSD_{c,d}(f) over all features of c's
+  network, and expert learning runs while the weakest support is 0 or below t_KSD. The true
+  classes of the image are scored as well as the uncertain ones (a certain recognition may rest
+  on a single feature), and the k strongest carriers of every scored pair count as used, so
+  alg. 5.3's discarding keeps them. Each accepted expert feature raises its pair's support
+  count by one, so a pair needs at most k of them; k = 1 is alg. 5.2 as printed.
+- ``evidence``: "both" (4.4.1) or "positive" (4.4.2: only features found present are entered;
+  an absent feature may be occluded), in training and recognition alike.
+- ``pseudocount`` a: CPTs count (n + a) / (N + 2a). The thesis's relative frequencies (a = 0)
+  give a feature present in every training view of c P(absent | c) = 0, so one unseen view
+  without it makes c impossible: an ignorant result.
 """
 from __future__ import annotations
 
@@ -45,6 +62,8 @@ from .recognition import Recognition, outcome, recognize, residual_entropy
 
 
 KIND = "learner"
+EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
+OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount")
 
 
 class Presentation(NamedTuple):
@@ -77,13 +96,22 @@ class DistinctiveFeatureLearner:
     write and read the whole state (networks, instance list, usage, random state) exactly.
     """
 
-    def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0):
+    def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
+                 search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0):
         if int(n_ex) < 1 or int(n_fgen) < 1:
             raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
         if not 0.0 <= min_information < 1.0:
             raise InputError(f"min_information must lie in [0, 1) bits, got {min_information}")
+        if int(search_rounds) < 1 or int(redundancy) < 1:
+            raise InputError(f"search_rounds and redundancy must be at least 1, got {search_rounds} and {redundancy}")
+        if not 0.0 <= pseudocount < float("inf"):
+            raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
+        if evidence not in EVIDENCE:
+            raise InputError(f"evidence {evidence!r}: expected one of {', '.join(EVIDENCE)}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
         self.min_information = float(min_information)
+        self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
+        self.pseudocount = float(pseudocount)
         self.generator = torch.Generator().manual_seed(int(seed))
         self.networks: dict[Hashable, ClassNetwork] = {}
         self.discriminates: dict[tuple, frozenset] = {}
@@ -92,6 +120,10 @@ class DistinctiveFeatureLearner:
         self.presentations = 0
         self.sampled = 0
         self.trainable = True  # False once loaded from a recognition-only state
+
+    def options(self) -> dict:
+        """The generalization options (module docstring), as keyword arguments of the constructor."""
+        return {k: getattr(self, k) for k in OPTIONS}
 
     # -- measurement -------------------------------------------------------------------------
     def _measure(self, env: ImageSet, features, images) -> None:
@@ -120,7 +152,8 @@ class DistinctiveFeatureLearner:
         out = []
         for k in range(len(images)):
             column = dict(zip(features, table[:, k].tolist()))
-            out.append(recognize(self.networks, column.__getitem__, max(self.min_information, 1e-12)))
+            out.append(recognize(self.networks, column.__getitem__, max(self.min_information, 1e-12),
+                                 positive_only=self.evidence == "positive"))
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
@@ -144,7 +177,7 @@ class DistinctiveFeatureLearner:
         for f in net.features:
             values = self.instances.values(f)
             states[f] = np.where(np.isnan(values), -1, (values > net.threshold[f]).astype(int))
-        net.estimate(self.instances.has(label), states)
+        net.estimate(self.instances.has(label), states, self.pseudocount)
 
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior."""
@@ -196,7 +229,7 @@ class DistinctiveFeatureLearner:
         if chosen is None:
             return Presentation(rec, "correct", entropy)
         c, d, weakest = chosen
-        if weakest >= t_ksd:
+        if weakest >= t_ksd and (self.redundancy == 1 or weakest > 0):  # k > 1: carried means power > 0 too
             return Presentation(rec, "correct", entropy, (c, d), weakest)
         learned = self._search(env, image, c, frozenset({d}), c in true, t_ksd,
                                lambda after: outcome(after.recognized, true) == "correct")
@@ -205,23 +238,32 @@ class DistinctiveFeatureLearner:
     def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
         """Alg. 5.2: (c, d, KSD_{c,d}) for the least-well-discriminated pair of a class c with
         residual entropy and a class d on the other side of the truth (eq. 5.1); None if no class
-        is uncertain or no such pair exists."""
+        is uncertain or no such pair exists.
+
+        With ``redundancy`` k > 1 the pair's score is its support: the k-th largest KSD_{c,d}(f)
+        over all features f of c's network (0 with fewer than k); c ranges over the uncertain
+        classes and the true classes; and the k strongest carriers of every pair scored count as
+        used (alg. 5.3 step 4), since recognition stops consulting once a class is certain."""
+        k = self.redundancy
         best = None
         labels = list(self.networks)
         for c in labels:
-            if entropy.get(c, 0.0) <= 0:
+            if entropy.get(c, 0.0) <= 0 and not (k > 1 and c in true):
                 continue
             others = [d for d in labels if (d in true) != (c in true)]
             if not others:
                 continue
             net = self.networks[c]
-            consulted = [f for f in net.features if f in rec.values]
+            carriers = [f for f in net.features if k > 1 or f in rec.values]
             present = torch.from_numpy(self.instances.has(c))
-            if consulted:
-                values = torch.from_numpy(np.stack([self.instances.values(f) for f in consulted]))
-                cuts = torch.tensor([net.threshold[f] for f in consulted], dtype=torch.float64)
-                scores = [float(distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present).max())
+            if carriers:
+                values = torch.from_numpy(np.stack([self.instances.values(f) for f in carriers]))
+                cuts = torch.tensor([net.threshold[f] for f in carriers], dtype=torch.float64)
+                powers = [distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present)
                           for d in others]
+                scores = [float(p.topk(k).values[-1]) if len(p) >= k else 0.0 for p in powers]
+                if k > 1:
+                    self._mark_usage({carriers[i] for p in powers for i in p.topk(min(k, len(p))).indices.tolist()})
             else:
                 scores = [0.0] * len(others)
             j = int(np.argmin(scores))
@@ -325,7 +367,8 @@ class DistinctiveFeatureLearner:
     def _search(self, env: ImageSet, image: int, char, disc: frozenset, char_is_true: bool, t_ksd: float,
                 succeeded) -> bool:
         """Alg. 4.8 from step 2: add one feature characteristic of ``char`` against ``disc`` with
-        distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``."""
+        distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``.
+        Alg. 4.10 (the five methods) is called up to ``search_rounds`` times (alg. 5.1's "until")."""
         sample = image if char_is_true else self._pick(env.examples(char, self.n_ex, self.generator))
         examples = env.examples(char, self.n_ex, self.generator)
         for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
@@ -333,8 +376,10 @@ class DistinctiveFeatureLearner:
         images = list(dict.fromkeys([image, sample, *examples]))
         net = self.networks[char]
         failed: list = []
-        for method in range(1, 6):
-            candidates = [f for f in self._candidates(method, env, sample, char, disc, failed) if f not in net]
+        for method in [m for _ in range(self.search_rounds) for m in range(1, 6)]:
+            tried = set(failed)
+            candidates = [f for f in self._candidates(method, env, sample, char, disc, failed)
+                          if f not in net and f not in tried]
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
                 continue
@@ -380,7 +425,7 @@ class DistinctiveFeatureLearner:
         own = table is None
         table = FeatureTable() if own else table
         state = {"n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information,
-                 "presentations": self.presentations, "sampled": self.sampled,
+                 **self.options(), "presentations": self.presentations, "sampled": self.sampled,
                  "networks": self._networks_state(table)}
         if training:
             instances = self.instances
@@ -405,6 +450,10 @@ class DistinctiveFeatureLearner:
         features = unpack_features(state["features"]) if features is None else features
         self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
         self.min_information = float(state["min_information"])
+        options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
+        probe = DistinctiveFeatureLearner(**options)  # validates them
+        self.search_rounds, self.redundancy = probe.search_rounds, probe.redundancy
+        self.evidence, self.pseudocount = probe.evidence, probe.pseudocount
         self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
         self.networks = {}
         for record in state["networks"]:

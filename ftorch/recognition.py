@@ -2,8 +2,10 @@
 
 Recognition repeatedly queries the feature with the largest mutual information with any class
 node, measures it in the image, and enters presence or absence (value above the node's
-threshold) into every network that holds it: positive and negative evidence both count. It
-stops when no unqueried feature is informative (I_max <= ``tolerance``). Evidence that a
+threshold) into every network that holds it: positive and negative evidence both count. With
+``positive_only`` (4.4.2's alternative for robustness to occlusion) only presence is entered; an
+absent feature stays unobserved, as if occluded. It stops when no unqueried feature is
+informative (I_max <= ``tolerance``). Evidence that a
 network deems impossible (probability 0 under its counted CPTs) is not entered there; that
 network keeps its belief. Ties in I_max go to the first network, then the first feature.
 """
@@ -60,7 +62,7 @@ class Recognition:
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
-              tolerance: float = 1e-12) -> Recognition:
+              tolerance: float = 1e-12, positive_only: bool = False) -> Recognition:
     """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14).
 
     Features are indexed once; each network keeps its evidence as a state array and only the
@@ -94,8 +96,11 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
         values[key] = value
         queried.append(key)
         for n in holders[best]:
+            present = value > nets[n].threshold[key]
+            if positive_only and not present:
+                continue
             trial = states[n].copy()
-            trial[local[n][key]] = int(value > nets[n].threshold[key])
+            trial[local[n][key]] = int(present)
             posterior, info = nets[n].evaluate(trial)
             if posterior == posterior:  # not NaN: the evidence is possible
                 states[n], belief[n], informative[n] = trial, posterior, info

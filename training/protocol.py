@@ -34,7 +34,7 @@ from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, save_
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.features import FeatureTable, unpack_features
-from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.learner import OPTIONS, DistinctiveFeatureLearner
 from ftorch.recognition import Recognition, accuracy, outcome
 
 OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
@@ -159,7 +159,8 @@ class Fold:
             learner, order, state = self._resume()
         else:
             learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed,
-                                                min_information=self.config.get("min_information", 0.0))
+                                                min_information=self.config.get("min_information", 0.0),
+                                                **{k: self.config[k] for k in OPTIONS if k in self.config})
             order = torch.Generator().manual_seed(seed)
             state = {"phase": 0, "stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
                      "total_cycles": 0, "seconds": 0.0, "added": [], "sampled_before": 0}

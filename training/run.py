@@ -31,7 +31,7 @@ from ftorch import FeatureSpace, load_image
 from ftorch.draw import draw_features, draw_salient, grid, save_rgb, titled
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.learner import EVIDENCE, DistinctiveFeatureLearner
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
@@ -147,8 +147,15 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
     return {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
             "classes": task.classes(), "views": args.views, "first_view": args.first_view,
             "size": 64 if args.size is None and task.name == "plym" else args.size, "seed": seed,
-            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information, "device": str(resolve_device(args.device)), "stages": args.stages,
+            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information,
+            **learner_options(args), "device": str(resolve_device(args.device)), "stages": args.stages,
             "max_cycles": args.max_cycles, "incremental": incremental}
+
+
+def learner_options(args) -> dict:
+    """The learner's generalization options from the command line (ftorch.learner.OPTIONS)."""
+    return {"search_rounds": args.search_rounds, "redundancy": args.redundancy, "evidence": args.evidence,
+            "pseudocount": args.pseudocount}
 
 
 def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
@@ -203,7 +210,8 @@ def recognize_command(args, incremental: bool = False) -> int:
         raise InputError(f"--seeds {args.seeds}: expected at least 1")
     if args.workers < 1:
         raise InputError(f"--workers {args.workers}: expected at least 1")
-    DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information)  # refuses bad parameters early
+    DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information,
+                              **learner_options(args))  # refuses bad parameters early
     start = time.perf_counter()
     torch.manual_seed(args.seed)
     task = load_task(*_task_key(args))
@@ -306,6 +314,14 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--min-information", type=float, default=MIN_INFORMATION, metavar="BITS",
                    help=f"stop a recognition once no unqueried feature has more mutual information with a class "
                         f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
+    p.add_argument("--search-rounds", type=int, default=1, metavar="N",
+                   help="calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate reaches t_KSD (default 1)")
+    p.add_argument("--redundancy", type=int, default=1, metavar="K",
+                   help="distinctive features each needed class distinction should have, 7.2.4 (default 1, the thesis)")
+    p.add_argument("--evidence", choices=EVIDENCE, default="both",
+                   help="both: presence and absence enter the networks (4.4.1); positive: presence only (4.4.2)")
+    p.add_argument("--pseudocount", type=float, default=0.0, metavar="A",
+                   help="added to every CPT count; 0 counts relative frequencies as the thesis (default 0)")
     p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")

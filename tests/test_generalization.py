@@ -1,0 +1,150 @@
+"""The learner's generalization options (issue 13): the search cap of alg. 5.1's "until",
+redundant distinctive features (7.2.4), positive-only evidence (4.4.2) and CPT pseudocounts."""
+import numpy as np
+import pytest
+import torch
+
+from ftorch.bayes import ClassNetwork
+from ftorch.errors import InputError
+from ftorch.ksd import distinctive_at
+from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.recognition import Recognition, outcome, recognize, residual_entropy
+
+from .test_learner import shapes  # noqa: F401  (fixture)
+from .test_recognition import two_class_networks
+
+
+def _train(env, learner, cycles: int, t_ksd: float = 0.0, order_seed: int = 0) -> list[list[str]]:
+    order = torch.Generator().manual_seed(order_seed)
+    history = []
+    for _ in range(cycles):
+        begin = learner.presentations
+        history.append([learner.learn(env, i, t_ksd).result for i in torch.randperm(18, generator=order).tolist()])
+        learner.discard_unused(since=begin + 1)
+    return history
+
+
+def _search(env, rounds: int, succeed_at: int | None, monkeypatch) -> tuple[bool, list, list]:
+    """A search for class 0 against 1 in which only the ``succeed_at``-th candidate tried reaches the target."""
+    learner = DistinctiveFeatureLearner(seed=1, search_rounds=rounds)
+    _train(env, learner, cycles=1)
+    calls, tried = [], []
+    generate = learner._candidates
+    monkeypatch.setattr(learner, "_candidates", lambda method, *a: calls.append(method) or generate(method, *a))
+
+    def power(label, features):
+        tried.extend(features)
+        return np.zeros(len(features)), np.full(len(features), float(len(tried) - 1 == succeed_at))
+    monkeypatch.setattr(learner, "_discretize", power)
+    return learner._search(env, 0, 0, frozenset({1}), True, 0.5, lambda rec: True), calls, tried
+
+
+@pytest.mark.parametrize("rounds", [1, 3])
+def test_a_hopeless_search_calls_alg_4_10_search_rounds_times_and_never_retries_a_candidate(shapes, rounds, monkeypatch):
+    found, calls, tried = _search(shapes, rounds, None, monkeypatch)
+    assert not found and calls == [1, 2, 3, 4, 5] * rounds
+    assert len(tried) == len(set(tried)) > 0  # a failed candidate is not tried again
+
+
+def test_the_search_goes_on_past_one_call_of_alg_4_10_and_stops_at_the_first_success(shapes, monkeypatch):
+    _, _, first_round = _search(shapes, 1, None, monkeypatch)
+    n = len(first_round) + 3  # a candidate of the second call
+    assert not _search(shapes, 1, n, monkeypatch)[0]
+    found, calls, tried = _search(shapes, 3, n, monkeypatch)
+    assert found and len(tried) == n + 1 and tried[:len(first_round)] == first_round
+    assert 5 < len(calls) < 10
+
+
+def test_redundancy_scores_a_pair_by_its_kth_strongest_feature_over_the_whole_network():
+    """A (true, certain) holds f, separating it from B and C, and g, separating it from C only."""
+    def learner(k):
+        out = DistinctiveFeatureLearner(redundancy=k)
+        rows = [(0, "A", .9, .9), (1, "A", .8, .8), (2, "B", .1, .85), (3, "B", .2, .9), (4, "C", .1, .1), (5, "C", .2, .2)]
+        for image, label, f, g in rows:
+            out.instances.add(image, {label})
+            out.instances.set(image, "f", f)
+            out.instances.set(image, "g", g)
+        for label in "ABC":
+            out.networks[label] = ClassNetwork(label)
+        out.networks["A"].add_feature("f")
+        out.networks["A"].add_feature("g")
+        return out
+    rec = Recognition({"A": 1.0, "B": 0.0, "C": 0.0}, {"A"}, ["f"], {"f": 0.9})
+    entropy = residual_entropy(rec)
+    assert learner(1).choose_pair(rec, frozenset({"A"}), entropy) is None  # no class uncertain: alg. 5.2 as printed
+    two = learner(2)
+    assert two.choose_pair(rec, frozenset({"A"}), entropy) == ("A", "B", 0.0)  # g does not carry A vs B
+    assert set(two.usage) == {"f", "g"}  # both carry A vs C: used
+    assert learner(3).choose_pair(rec, frozenset({"A"}), entropy) == ("A", "B", 0.0)
+
+
+def _support(learner, c, d) -> list[float]:
+    net = learner.networks[c]
+    present = torch.from_numpy(learner.instances.has(c))
+    values = torch.from_numpy(np.stack([learner.instances.values(f) for f in net.features]))
+    cuts = torch.tensor([net.threshold[f] for f in net.features], dtype=torch.float64)
+    return distinctive_at(values, cuts, present, torch.from_numpy(learner.instances.has(d)) & ~present).tolist()
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_after_a_clean_cycle_every_needed_distinction_has_k_distinctive_features(shapes, k):
+    learner = DistinctiveFeatureLearner(seed=0, redundancy=k)
+    history = _train(shapes, learner, cycles=12)
+    clean = [n for n, h in enumerate(history) if all(r == "correct" for r in h)]
+    assert clean, history
+    learner = DistinctiveFeatureLearner(seed=0, redundancy=k)
+    _train(shapes, learner, cycles=clean[0] + 1)
+    labels = sorted({c for i in range(18) for c in shapes.labels[i]})
+    for c in labels:
+        for d in labels:
+            if d != c:
+                assert sum(p > 0 for p in _support(learner, c, d)) >= k, (c, d)
+    single = DistinctiveFeatureLearner(seed=0)
+    _train(shapes, single, cycles=clean[0] + 1)
+    assert sum(len(n.features) for n in single.networks.values()) < sum(len(n.features) for n in learner.networks.values())
+
+
+def test_positive_evidence_enters_presence_only():
+    nets = two_class_networks()
+    values = {"a": 0.1, "b": 0.9, "bb": 0.1}
+    both = recognize(nets, values.__getitem__)
+    assert both.posteriors["A"] == 0.0  # absence of A's perfect feature rules A out
+    positive = recognize(nets, values.__getitem__, positive_only=True)
+    assert positive.posteriors["A"] == 0.5  # its absence is not entered: the prior stays
+    assert positive.posteriors["B"] == pytest.approx(nets["B"].posterior({"b": 1}))
+    present = {"a": 0.9, "b": 0.9, "bb": 0.9}
+    assert recognize(nets, present.__getitem__, positive_only=True).posteriors == recognize(nets, present.__getitem__).posteriors
+
+
+def test_a_positive_evidence_learner_recognizes_with_presence_only(shapes):
+    learner = DistinctiveFeatureLearner(seed=0, evidence="positive")
+    _train(shapes, learner, cycles=3)
+    for image in range(18, 30):
+        rec = learner.recognize(shapes, image)
+        evidence = {label: {f: 1 for f in rec.queried if f in net and rec.values[f] > net.threshold[f]}
+                    for label, net in learner.networks.items()}
+        for label, net in learner.networks.items():
+            assert rec.posteriors[label] == pytest.approx(net.posterior(evidence[label]))
+
+
+def test_pseudocounts_follow_laplace_and_zero_keeps_relative_frequencies():
+    net = ClassNetwork("A")
+    net.add_feature("f")
+    present = np.array([1, 1, 1, 0, 0, 0, 0], bool)
+    states = {"f": np.array([1, 1, 1, 1, 0, 0, -1])}
+    net.estimate(present, states)
+    assert net.cpt["f"].tolist() == [[2 / 3, 1 / 3], [0.0, 1.0]]
+    net.estimate(present, states, pseudocount=1.0)
+    assert np.allclose(net.cpt["f"], [[3 / 5, 2 / 5], [1 / 5, 4 / 5]])
+    assert net.posterior({"f": 0}) > 0  # absence no longer rules A out
+
+
+def test_options_are_saved_validated_and_refused_with_one_line(shapes):
+    learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5)
+    copy = DistinctiveFeatureLearner()
+    copy.load_state_dict(learner.state_dict())
+    assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5}
+    for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
+                {"pseudocount": float("nan")}):
+        with pytest.raises(InputError):
+            DistinctiveFeatureLearner(**bad)
