@@ -102,15 +102,17 @@ def _p(value: float) -> str:
 def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
     cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in OUTCOMES),
              f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
-             f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}"]
+             f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}",
+             f"{features['sampled'] / presentations:.1f}" if presentations else ""]
     return "| " + " | ".join(cells) + " |"
 
 
 def summary_table(report: dict, which: int = 0) -> list[str]:
     """Table 4.2 (``which`` = 0) or 5.1 (-1): accuracy, outcome proportions, feature counts, cycles
-    and presentations so far, per fold and averaged, with the thesis's average row."""
-    head = ["| task | cls. | fold | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    and presentations so far, per fold and averaged, with the thesis's average row; last, features
+    sampled per presentation (alg. 5.1's search, the thesis's 5.0 on COIL)."""
+    head = ["| task | cls. | fold | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. | sp'd/img. |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     rows, n = [], len(report["classes"])
     task = f"{report['task']}-inc" if report["config"].get("incremental") else report["task"]
     cycles = []  # all cycles up to and including the stage, as table 5.1 counts them
