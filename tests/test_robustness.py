@@ -1,4 +1,5 @@
 """Robustness benchmark (7.2): seeded perturbations of test views and the baseline classifiers."""
+import json
 import math
 
 import cv2
@@ -195,3 +196,31 @@ def test_score_matches_definitions_4_5_and_4_6_by_hand():
     assert block["accuracy"] == pytest.approx((1 + 1 / 3 + 1 / 2 + 0 + 0 + 1 / 2) / 6)
     assert block == pytest.approx({"accuracy": block["accuracy"], "correct": 1 / 6, "ignorant": 2 / 6,
                                    "ambiguous": 1 / 6, "wrong": 1 / 6, "confused": 1 / 6})
+
+
+def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbed_views(tmp_path, capsys):
+    from training import run
+    out = tmp_path / "run"
+    assert run.main(["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1",
+                     "--peers", "--quiet", "--device", "cpu", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["peers"]["average"]) == {"pixel_nn", "sift"} and "Peers on the same splits" in (out / "report.md").read_text()
+    args = ["robustness", "--checkpoint", str(out), "--perturb", "clean,occlude,pair", "--peers", "--quiet", "--device", "cpu"]
+    assert run.main([*args, "--out", str(tmp_path / "a")]) == 0
+    result = json.loads((tmp_path / "a" / "robustness.json").read_text())
+    ours = result["folds"][0]["ours"]
+    assert ours["clean"]["accuracy"] == report["folds"][0]["stages"][-1]["test"]["accuracy"]  # the run's own test
+    assert result["average"]["peers"]["sift"]["clean"]["accuracy"] == report["peers"]["average"]["sift"]["clean"]
+    assert "pair" not in result["average"]["peers"]["pixel_nn"] and "pair" in result["average"]["peers"]["sift"]
+    tested = sum(sum(row["as"].values()) + row["ambiguous"] + row["confused"] + row["ignorant"]
+                 for row in report["folds"][0]["stages"][-1]["confusion"].values())
+    assert len(list((tmp_path / "a" / "fold1" / "occlude").glob("*.png"))) == tested == 14  # 7 test views per class
+    assert (tmp_path / "a" / "fold1" / "overview.png").is_file()
+    assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
+    again = json.loads((tmp_path / "b" / "robustness.json").read_text())
+    assert again["average"] == result["average"]  # same seed, same report
+    capsys.readouterr()
+    assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "blur"]) == 2
+    assert run.main(["robustness", "--checkpoint", str(tmp_path / "nothing")]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 2 and "--perturb 'blur'" in errors[0] and "not a run folder" in errors[1]

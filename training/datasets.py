@@ -34,6 +34,11 @@ class Task:
     def classes(self) -> list[str]:
         return list(dict.fromkeys(self.labels))
 
+    def view(self, i: int) -> torch.Tensor:
+        """Image i as a grey (H, W) tensor in [0, 1], loaded where it is a file."""
+        image = self.images[i]
+        return load_image(image) if isinstance(image, (str, Path)) else torch.as_tensor(image)
+
     def fold(self, fold: int) -> tuple[list[int], list[int]]:
         """(training, test) image indices of fold 1 or 2."""
         if fold not in (1, 2):

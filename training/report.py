@@ -240,6 +240,16 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                       f"sampled so far ~ classes^b: b = {g['exponent']:.2f} (95% interval {g['interval'][0]:.2f} "
                       f"to {g['interval'][1]:.2f}, {g['points']} points of all folds; b > 1 is superlinear); per fold: "
                       + ", ".join(f"fold {k} {v['exponent']:.2f}" for k, v in g["folds"].items()), ""]
+    if "peers" in report:
+        mean, final = report["peers"]["average"], report["average"]["final"]["test"]["accuracy"]
+        lines += ["## Peers on the same splits (clean test views, mean over folds)", "",
+                  "| method | accuracy | stores per class |", "|---|---|---|",
+                  f"| ftorch (final stage) | {final:.2f} | {report['average']['final']['features']['bn'] / len(classes):.1f} "
+                  "features (network nodes) |",
+                  f"| pixel 1-NN | {mean['pixel_nn']['clean']:.2f} | {mean['pixel_nn']['views_per_class']:.0f} views, "
+                  f"{mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
+                  f"| SIFT matching (ratio 0.75) | {mean['sift']['clean']:.2f} | "
+                  f"{mean['sift']['descriptors_per_view']:.0f} descriptors per view, {mean['sift']['bytes_per_class'] / 1024:.0f} kB |", ""]
     if "seeds" in report:
         s = report["seeds"]
         lines += [f"## Seeds (figure 5.5 form): fold {s['fold']}, seeds {s['seeds'][0]}-{s['seeds'][-1]}", "",

@@ -11,6 +11,8 @@ Commands:
                                of chapter 6 on the built-in grasp simulator: report.json,
                                report.md with histograms (figures 6.13, 6.14, 6.17), TensorBoard.
   evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
+  robustness --checkpoint RUN [--peers]   a recognize run's learners (and pixel 1-NN, SIFT
+                               matching) on rotated, cluttered, occluded and paired test views.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
                                Without images it uses the built-in scene.
@@ -39,6 +41,7 @@ from training.parallel import TasksFailed, run_tasks
 from training.protocol import Fold, confusion, feature_block, test_block
 from training.curves import write_curves
 from training.grasping.command import add_parser as add_grasp_parser
+from training.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
 from training.report import ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
 
 
@@ -248,6 +251,8 @@ def recognize_command(args, incremental: bool = False) -> int:
         seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
     seconds = time.perf_counter() - start
     report = build_report(run_config(args, task, args.seed, incremental), str(device), seconds, folds, seeds)
+    if args.peers:
+        report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
     write_json(out / "report.json", report)
     figures.append(str(write_curves(out, report).relative_to(out)))
     write_markdown(out / "report.md", report, figures)
@@ -289,6 +294,51 @@ def evaluate_command(args) -> int:
     return 0
 
 
+def _perturbations(text: str) -> list[str]:
+    kinds = list(SETS) if text == "all" else [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in SETS]
+    if unknown or not kinds:
+        raise InputError(f"--perturb {text!r}: expected all or a comma-separated list of {', '.join(SETS)}")
+    return list(dict.fromkeys(kinds))
+
+
+def robustness_command(args) -> int:
+    """The robustness benchmark on a recognize run's folds (training/robustness.py)."""
+    device = resolve_device(args.device)
+    kinds = _perturbations(args.perturb)
+    run = Path(args.checkpoint)
+    try:
+        report = json.loads((run / "report.json").read_text())
+        config = report["config"]
+        task = load_task(config["task"], args.data or config["data"], len(config["classes"]), config["views"],
+                         config["size"], config["seed"], config["first_view"])
+        folds = [f["fold"] for f in report["folds"]]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+    out = Path(args.out) if args.out else run / "robustness"
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    space = FeatureSpace().to(device)
+    results = []
+    for k in folds:
+        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json")
+        if args.evidence != "learned":
+            learner.evidence = args.evidence
+        results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
+    result = {"run": str(run), "data": str(args.data or config["data"]), "seed": args.seed, "sets": kinds,
+              "evidence": args.evidence, "learner": config, "folds": results,
+              "average": average_robustness(results), "seconds": time.perf_counter() - start}
+    write_json(out / "robustness.json", result)
+    lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
+             f"{result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the ignorant share (def. 4.5), "
+             "mean over folds.", "", *robustness_table(result), "",
+             *[f"![fold {k}](fold{k}/overview.png)" for k in folds], ""]
+    (out / "robustness.md").write_text("\n".join(lines))
+    print("\n".join(robustness_table(result)))
+    print(f"report: {out / 'robustness.md'} and {out / 'robustness.json'}; perturbed images in {out}/foldK/SET/")
+    return 0
+
+
 def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
@@ -314,6 +364,7 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--min-information", type=float, default=MIN_INFORMATION, metavar="BITS",
                    help=f"stop a recognition once no unqueried feature has more mutual information with a class "
                         f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
+    p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same splits")
     p.add_argument("--search-rounds", type=int, default=1, metavar="N",
                    help="calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate reaches t_KSD (default 1)")
     p.add_argument("--redundancy", type=int, default=1, metavar="K",
@@ -348,6 +399,18 @@ def parser() -> argparse.ArgumentParser:
     _task_options(p, ("coil", "folder"), "coil")
     p.add_argument("--out", default="runs/evaluate", help="output folder (default runs/evaluate)")
     p.set_defaults(run=evaluate_command)
+    p = commands.add_parser("robustness", help="a run's learners and the peers on perturbed test views (7.2)")
+    p.add_argument("--checkpoint", required=True, help="a run folder written by recognize (report.json, foldK/learner.json)")
+    p.add_argument("--data", help="the run's image folder, where it has moved (default: as recorded in the run)")
+    p.add_argument("--perturb", default="all", help=f"all (default) or a comma-separated list of {', '.join(SETS)}")
+    p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same images")
+    p.add_argument("--evidence", choices=("learned", *EVIDENCE), default="learned",
+                   help="recognize with the evidence mode the learner was trained with (default) or another")
+    p.add_argument("--seed", type=int, default=0, help="seed of the perturbations (default 0)")
+    p.add_argument("--out", help="output folder (default CHECKPOINT/robustness)")
+    p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=robustness_command)
     p = commands.add_parser("salient", help="draw salient edgels and texels (figure 3.9)")
     p.add_argument("images", nargs="*", help="image files (default: the built-in scene)")
     p.add_argument("--out", default="runs/salient", help="output folder (default: runs/salient)")

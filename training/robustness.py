@@ -1,0 +1,149 @@
+"""The robustness benchmark (7.2): a run's learners and the peers on perturbed test views.
+
+For each fold of a ``recognize`` run, the fold's test views are perturbed (:mod:`training.perturb`,
+seeded from the benchmark seed and the fold) and recognized by the fold's ``learner.json``; with
+peers, pixel 1-NN and SIFT matching (:mod:`training.peers`) are fitted on the same fold's
+training views and answer on the same images. ``pair`` images hold two classes: the learner and
+SIFT (its two best classes) are scored by def. 4.5/4.6; pixel 1-NN cannot compare an image of
+another size and is left out there.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ftorch.draw import grid, save_rgb, titled
+from ftorch.environment import ImageSet
+from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.record import FeatureSpace
+
+from .datasets import Task
+from .peers import PixelNN, SiftMatcher, score
+from .perturb import KINDS, perturb, save_examples
+from .protocol import test_block
+
+SETS = ("clean", *KINDS)
+PEERS = ("pixel_nn", "sift")
+
+
+def fold_sets(images: list, labels: list[frozenset], kinds: list[str], seed: int) -> dict:
+    """Test views as they are ("clean") and under each perturbation: set -> (images, labels)."""
+    sets = {"clean": (images, labels)} if "clean" in kinds else {}
+    for kind in kinds:
+        if kind != "clean":
+            sets[kind] = perturb(images, labels, kind, seed)
+    return sets
+
+
+def peer_results(train_images: list, train_labels: list[frozenset], sets: dict, classes: list) -> dict:
+    """peer -> set -> score (def. 4.6, 4.5 proportions), with what each peer stores per class."""
+    nn = PixelNN().fit(train_images, train_labels)
+    sift = SiftMatcher().fit(train_images, train_labels)
+    out = {"pixel_nn": {"bytes_per_class": nn.storage_per_class(), "views_per_class": len(train_images) / len(classes)},
+           "sift": {"bytes_per_class": sift.storage_per_class(), "descriptors_per_view": sift.descriptors_per_view()}}
+    for name, (images, labels) in sets.items():
+        two = max(len(l) for l in labels)
+        if all(nn.supports(tuple(x.shape)) for x in images):
+            out["pixel_nn"][name] = score(nn.predict(images), labels, classes)
+        out["sift"][name] = score(sift.predict(images, n_classes=two), labels, classes)
+    return out
+
+
+def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: list, space: FeatureSpace,
+                    progress: bool) -> dict:
+    """set -> the learner's test block (def. 4.6 and 4.5) and features queried per image."""
+    out = {}
+    for name, (images, labels) in sets.items():
+        env = ImageSet(images, labels, space, progress=progress)
+        recognitions = learner.recognize_many(env, range(len(env)))
+        out[name] = {**test_block(recognitions, env.labels, classes),
+                     "queried": float(np.mean([len(r.queried) for r in recognitions]))}
+    return out
+
+
+def learner_storage(learner: DistinctiveFeatureLearner) -> dict:
+    """Features per class network and the numbers each stores (its parts' descriptors)."""
+    sizes = [len(net.features) for net in learner.networks.values()]
+    return {"features_per_class": float(np.mean(sizes)) if sizes else 0.0, "max_features_per_class": max(sizes, default=0)}
+
+
+def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, kinds: list[str], seed: int,
+                    space: FeatureSpace, peers: bool, out: Path | None, progress: bool) -> dict:
+    """One fold: the learner (and peers) on every set; perturbed images saved under ``out``/KIND."""
+    train, test = task.fold(fold)
+    classes = task.classes()
+    names = [task.names[i] for i in test]
+    sets = fold_sets([task.view(i) for i in test], [frozenset({task.labels[i]}) for i in test], kinds, seed * 1000 + fold)
+    if out is not None:
+        for name, (images, _) in sets.items():
+            if name != "clean":
+                save_examples(images, names, out / f"fold{fold}" / name)
+        (out / f"fold{fold}").mkdir(parents=True, exist_ok=True)
+        save_rgb(out / f"fold{fold}" / "overview.png", overview(task, sets, test))
+    start = time.perf_counter()
+    result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
+              "storage": learner_storage(learner)}
+    result["seconds"] = {"ours": time.perf_counter() - start}
+    if peers:
+        start = time.perf_counter()
+        result["peers"] = peer_results([task.view(i) for i in train], [frozenset({task.labels[i]}) for i in train],
+                                       sets, classes)
+        result["seconds"]["peers"] = time.perf_counter() - start
+    return result
+
+
+def average(folds: list[dict]) -> dict:
+    """Mean over folds of every score of ours and the peers."""
+    def mean(blocks):
+        return {k: float(np.mean([b[k] for b in blocks])) for k in blocks[0]}
+    out = {"ours": {s: mean([f["ours"][s] for f in folds]) for s in folds[0]["ours"]}}
+    if "peers" in folds[0]:
+        out["peers"] = {p: {s: mean([f["peers"][p][s] for f in folds]) for s in folds[0]["peers"][p]
+                            if isinstance(folds[0]["peers"][p][s], dict)} for p in PEERS}
+    return out
+
+
+def table(result: dict) -> list[str]:
+    """Markdown: accuracy (ignorant share) per set for ours and the peers, averaged over folds."""
+    avg = result["average"]
+    sets = list(avg["ours"])
+    head = ["| method | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
+    def row(name, blocks):
+        return f"| {name} | " + " | ".join(f"{blocks[s]['accuracy']:.2f} ({blocks[s]['ignorant']:.2f})" if s in blocks
+                                            else "n/a" for s in sets) + " |"
+    rows = [row("ftorch", avg["ours"])]
+    for peer, name in (("pixel_nn", "pixel 1-NN"), ("sift", "SIFT matching")):
+        if "peers" in avg:
+            rows.append(row(name, avg["peers"][peer]))
+    return head + rows
+
+
+def overview(task: Task, sets: dict, test: list[int]) -> np.ndarray:
+    """One test view per class (columns) under every set (rows), as an RGB picture."""
+    first = {}
+    for k, i in enumerate(test):
+        first.setdefault(task.labels[i], k)
+    panels = []
+    for name, (images, _) in sets.items():
+        for label, k in first.items():
+            grey = (np.clip(images[k].numpy(), 0, 1) * 255).round().astype(np.uint8)
+            grey = np.kron(grey, np.ones((-(-96 // grey.shape[0]),) * 2, np.uint8))  # small views enlarged
+            panels.append(titled(np.repeat(grey[..., None], 3, axis=2), f"{name}: {label}"))
+    return grid(panels, len(first))
+
+
+def split_peers(task: Task, folds: list[int]) -> dict:
+    """The peers on each fold's clean test views (``recognize --peers``): per fold and averaged."""
+    results = []
+    for k in folds:
+        train, test = task.fold(k)
+        sets = {"clean": ([task.view(i) for i in test], [frozenset({task.labels[i]}) for i in test])}
+        start = time.perf_counter()
+        results.append({"fold": k, **peer_results([task.view(i) for i in train],
+                                                  [frozenset({task.labels[i]}) for i in train], sets, task.classes()),
+                        "seconds": time.perf_counter() - start})
+    mean = {p: {key: float(np.mean([r[p][key]["accuracy"] if isinstance(r[p][key], dict) else r[p][key] for r in results]))
+                for key in results[0][p]} for p in PEERS}
+    return {"folds": results, "average": mean}
