@@ -210,6 +210,7 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     result = json.loads((tmp_path / "a" / "robustness.json").read_text())
     ours = result["folds"][0]["ours"]
     assert ours["clean"]["accuracy"] == report["folds"][0]["stages"][-1]["test"]["accuracy"]  # the run's own test
+    assert "flipped" not in ours["clean"] and 0 < ours["occlude"]["flipped"] < 1
     assert result["average"]["peers"]["sift"]["clean"]["accuracy"] == report["peers"]["average"]["sift"]["clean"]
     assert "pair" not in result["average"]["peers"]["pixel_nn"] and "pair" in result["average"]["peers"]["sift"]
     tested = sum(sum(row["as"].values()) + row["ambiguous"] + row["confused"] + row["ignorant"]

@@ -53,13 +53,23 @@ def peer_results(train_images: list, train_labels: list[frozenset], sets: dict, 
 
 def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: list, space: FeatureSpace,
                     progress: bool) -> dict:
-    """set -> the learner's test block (def. 4.6 and 4.5) and features queried per image."""
-    out = {}
+    """set -> the learner's test block (def. 4.6 and 4.5), features queried per image and, where
+    the clean views were recognized too, ``flipped``: the share of (network node, view) whose state
+    (value above the node's cut-point) differs from the clean view's, a measure of how stable the
+    features are under the perturbation."""
+    out, states = {}, {}
+    nodes = [(net, f) for net in learner.networks.values() for f in net.features]
     for name, (images, labels) in sets.items():
         env = ImageSet(images, labels, space, progress=progress)
         recognitions = learner.recognize_many(env, range(len(env)))
         out[name] = {**test_block(recognitions, env.labels, classes),
                      "queried": float(np.mean([len(r.queried) for r in recognitions]))}
+        if nodes:
+            values = env.values([f for _, f in nodes], list(range(len(env))))
+            states[name] = values > np.array([net.threshold[f] for net, f in nodes])[:, None]
+    for name in out:
+        if name != "clean" and "clean" in states:
+            out[name]["flipped"] = float((states[name] != states["clean"]).mean())
     return out
 
 
@@ -114,6 +124,9 @@ def table(result: dict) -> list[str]:
         return f"| {name} | " + " | ".join(f"{blocks[s]['accuracy']:.2f} ({blocks[s]['ignorant']:.2f})" if s in blocks
                                             else "n/a" for s in sets) + " |"
     rows = [row("ftorch", avg["ours"])]
+    if any("flipped" in b for b in avg["ours"].values()):
+        rows.append("| ftorch nodes flipped vs clean | " + " | ".join(
+            f"{avg['ours'][s]['flipped']:.2f}" if "flipped" in avg["ours"][s] else "" for s in sets) + " |")
     for peer, name in (("pixel_nn", "pixel 1-NN"), ("sift", "SIFT matching")):
         if "peers" in avg:
             rows.append(row(name, avg["peers"][peer]))

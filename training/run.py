@@ -331,7 +331,8 @@ def robustness_command(args) -> int:
     write_json(out / "robustness.json", result)
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
              f"{result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the ignorant share (def. 4.5), "
-             "mean over folds.", "", *robustness_table(result), "",
+             "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
+             "the clean view's.", "", *robustness_table(result), "",
              *[f"![fold {k}](fold{k}/overview.png)" for k in folds], ""]
     (out / "robustness.md").write_text("\n".join(lines))
     print("\n".join(robustness_table(result)))
