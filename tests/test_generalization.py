@@ -148,3 +148,12 @@ def test_options_are_saved_validated_and_refused_with_one_line(shapes):
                 {"pseudocount": float("nan")}):
         with pytest.raises(InputError):
             DistinctiveFeatureLearner(**bad)
+
+
+@pytest.mark.parametrize("option", [["--search-rounds", "0"], ["--redundancy", "0"], ["--pseudocount", "-1"],
+                                    ["--pseudocount", "inf"]])
+def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path, capsys):
+    from training import run
+    assert run.main(["recognize", "--task", "plym", "--out", str(tmp_path / "run"), *option]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and not (tmp_path / "run").exists()
