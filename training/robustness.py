@@ -65,12 +65,26 @@ def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: lis
         out[name] = {**test_block(recognitions, env.labels, classes),
                      "queried": float(np.mean([len(r.queried) for r in recognitions]))}
         if nodes:
-            values = env.values([f for _, f in nodes], list(range(len(env))))
-            states[name] = values > np.array([net.threshold[f] for net, f in nodes])[:, None]
+            states[name] = node_states(nodes, env)
+            out[name].update(presence(nodes, states[name], env.labels))
     for name in out:
         if name != "clean" and "clean" in states:
             out[name]["flipped"] = float((states[name] != states["clean"]).mean())
     return out
+
+
+def node_states(nodes: list, env: ImageSet) -> np.ndarray:
+    """(nodes, images) bool: each (network, feature) node present (value above its cut-point)."""
+    values = env.values([f for _, f in nodes], list(range(len(env))))
+    return values > np.array([net.threshold[f] for net, f in nodes])[:, None]
+
+
+def presence(nodes: list, states: np.ndarray, labels: list[frozenset]) -> dict:
+    """How often a class network's nodes are present on views of that class (``present_own``) and of
+    other classes (``present_other``): the features' recall and false-alarm rate."""
+    own = np.array([[net.label in l for l in labels] for net, _ in nodes])
+    return {"present_own": float(states[own].mean()) if own.any() else 0.0,
+            "present_other": float(states[~own].mean()) if (~own).any() else 0.0}
 
 
 def learner_storage(learner: DistinctiveFeatureLearner) -> dict:
@@ -96,6 +110,10 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
     result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
               "storage": learner_storage(learner)}
     result["seconds"] = {"ours": time.perf_counter() - start}
+    nodes = [(net, f) for net in learner.networks.values() for f in net.features]
+    if nodes:  # the same on the training views, where the cut-points were set
+        trained = ImageSet([task.view(i) for i in train], [{task.labels[i]} for i in train], space)
+        result["train"] = presence(nodes, node_states(nodes, trained), trained.labels)
     if peers:
         start = time.perf_counter()
         result["peers"] = peer_results([task.view(i) for i in train], [frozenset({task.labels[i]}) for i in train],
@@ -109,6 +127,8 @@ def average(folds: list[dict]) -> dict:
     def mean(blocks):
         return {k: float(np.mean([b[k] for b in blocks])) for k in blocks[0]}
     out = {"ours": {s: mean([f["ours"][s] for f in folds]) for s in folds[0]["ours"]}}
+    if all("train" in f for f in folds):
+        out["train"] = mean([f["train"] for f in folds])
     if "peers" in folds[0]:
         out["peers"] = {p: {s: mean([f["peers"][p][s] for f in folds]) for s in folds[0]["peers"][p]
                             if isinstance(folds[0]["peers"][p][s], dict)} for p in PEERS}
@@ -124,6 +144,11 @@ def table(result: dict) -> list[str]:
         return f"| {name} | " + " | ".join(f"{blocks[s]['accuracy']:.2f} ({blocks[s]['ignorant']:.2f})" if s in blocks
                                             else "n/a" for s in sets) + " |"
     rows = [row("ftorch", avg["ours"])]
+    if "train" in avg and "present_own" in avg["ours"][sets[0]]:
+        rows.append(f"| ftorch nodes present on own class (training views: {avg['train']['present_own']:.2f}) | "
+                    + " | ".join(f"{avg['ours'][s]['present_own']:.2f}" for s in sets) + " |")
+        rows.append(f"| ftorch nodes present on other classes (training views: {avg['train']['present_other']:.2f}) | "
+                    + " | ".join(f"{avg['ours'][s]['present_other']:.2f}" for s in sets) + " |")
     if any("flipped" in b for b in avg["ours"].values()):
         rows.append("| ftorch nodes flipped vs clean | " + " | ".join(
             f"{avg['ours'][s]['flipped']:.2f}" if "flipped" in avg["ours"][s] else "" for s in sets) + " |")
