@@ -25,8 +25,12 @@ class KSD:
     distinctive: Tensor
 
 
-def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor) -> KSD:
-    """KSD of each row of ``values`` (F, n) between two groups of instances, masks (n,) or (F, n)."""
+def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor, position: float = 0.5) -> KSD:
+    """KSD of each row of ``values`` (F, n) between two groups of instances, masks (n,) or (F, n).
+
+    The cut-point lies at ``position`` between the two adjacent values that reach the KSD
+    (0.5: their midpoint, as 4.3.2; lower values move a characteristic feature's cut-point
+    towards the discriminated values, so that slightly weaker occurrences still count as present)."""
     values = torch.as_tensor(values, dtype=torch.float64)
     if values.ndim != 2:
         raise ValueError(f"values must be (features, instances), got shape {tuple(values.shape)}")
@@ -49,7 +53,8 @@ def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor) -> KSD:
     best, at = score.max(1)
     found = (best >= 0) & a.any(1) & b.any(1)
     distance = torch.where(found, best, torch.zeros_like(best))
-    cut = (below.gather(1, at[:, None]) + above.gather(1, at[:, None]))[:, 0] / 2
+    low, high = below.gather(1, at[:, None])[:, 0], above.gather(1, at[:, None])[:, 0]
+    cut = (low + high) / 2 if position == 0.5 else low + position * (high - low)
     cutpoint = torch.where(found, cut, torch.full_like(cut, math.nan))
     characteristic = difference.gather(1, at[:, None])[:, 0] > 0
     return KSD(distance, cutpoint, torch.where(found & characteristic, distance, torch.zeros_like(distance)))

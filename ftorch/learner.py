@@ -38,6 +38,8 @@ Options for generalization beyond the thesis (each default is the thesis's behav
   count by one, so a pair needs at most k of them; k = 1 is alg. 5.2 as printed.
 - ``evidence``: "both" (4.4.1) or "positive" (4.4.2: only features found present are entered;
   an absent feature may be occluded), in training and recognition alike.
+- ``cut_position`` w: a node's cut-point lies at w between the two adjacent values where its KSD
+  is reached (0.5, the midpoint, as 4.3.2).
 - ``pseudocount`` a: CPTs count (n + a) / (N + 2a). The thesis's relative frequencies (a = 0)
   give a feature present in every training view of c P(absent | c) = 0, so one unseen view
   without it makes c impossible: an ignorant result.
@@ -63,7 +65,7 @@ from .recognition import Recognition, outcome, recognize, residual_entropy
 
 KIND = "learner"
 EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
-OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount")
+OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "cut_position")
 
 
 class Presentation(NamedTuple):
@@ -97,7 +99,8 @@ class DistinctiveFeatureLearner:
     """
 
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
-                 search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0):
+                 search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
+                 cut_position: float = 0.5):
         if int(n_ex) < 1 or int(n_fgen) < 1:
             raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
         if not 0.0 <= min_information < 1.0:
@@ -106,12 +109,14 @@ class DistinctiveFeatureLearner:
             raise InputError(f"search_rounds and redundancy must be at least 1, got {search_rounds} and {redundancy}")
         if not 0.0 <= pseudocount < float("inf"):
             raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
+        if not 0.0 <= cut_position <= 1.0:
+            raise InputError(f"cut_position must lie in [0, 1], got {cut_position}")
         if evidence not in EVIDENCE:
             raise InputError(f"evidence {evidence!r}: expected one of {', '.join(EVIDENCE)}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
         self.min_information = float(min_information)
         self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
-        self.pseudocount = float(pseudocount)
+        self.pseudocount, self.cut_position = float(pseudocount), float(cut_position)
         self.generator = torch.Generator().manual_seed(int(seed))
         self.networks: dict[Hashable, ClassNetwork] = {}
         self.discriminates: dict[tuple, frozenset] = {}
@@ -168,7 +173,7 @@ class DistinctiveFeatureLearner:
                 masks[against] = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present
         discriminated = np.stack([masks[self.discriminates.get((label, f)) or frozenset()] for f in features])
         values = np.stack([self.instances.values(f) for f in features])
-        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated))
+        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), self.cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
 
     def _estimate(self, label) -> None:
@@ -453,7 +458,7 @@ class DistinctiveFeatureLearner:
         options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
         probe = DistinctiveFeatureLearner(**options)  # validates them
         self.search_rounds, self.redundancy = probe.search_rounds, probe.redundancy
-        self.evidence, self.pseudocount = probe.evidence, probe.pseudocount
+        self.evidence, self.pseudocount, self.cut_position = probe.evidence, probe.pseudocount, probe.cut_position
         self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
         self.networks = {}
         for record in state["networks"]:

@@ -143,7 +143,8 @@ def test_options_are_saved_validated_and_refused_with_one_line(shapes):
     learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5)
     copy = DistinctiveFeatureLearner()
     copy.load_state_dict(learner.state_dict())
-    assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5}
+    assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5,
+                              "cut_position": 0.5}
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
                 {"pseudocount": float("nan")}):
         with pytest.raises(InputError):
@@ -157,3 +158,15 @@ def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path,
     assert run.main(["recognize", "--task", "plym", "--out", str(tmp_path / "run"), *option]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("position", [0.0, 0.25, 0.5, 1.0])
+def test_the_cut_position_moves_the_cut_point_within_its_gap_and_nothing_else(position):
+    from ftorch.ksd import ksd
+    values = torch.tensor([[0.1, 0.2, 0.3, 0.7, 0.8, 0.9]], dtype=torch.float64)
+    own = torch.tensor([False, False, False, True, True, True])
+    middle, moved = ksd(values, own, ~own), ksd(values, own, ~own, position)
+    assert middle.cutpoint.item() == pytest.approx(0.5) and moved.cutpoint.item() == pytest.approx(0.3 + 0.4 * position)
+    assert torch.equal(middle.distinctive, moved.distinctive) and torch.equal(middle.distance, moved.distance)
+    with pytest.raises(InputError, match="cut_position"):
+        DistinctiveFeatureLearner(cut_position=1.5)

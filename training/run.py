@@ -158,7 +158,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
 def learner_options(args) -> dict:
     """The learner's generalization options from the command line (ftorch.learner.OPTIONS)."""
     return {"search_rounds": args.search_rounds, "redundancy": args.redundancy, "evidence": args.evidence,
-            "pseudocount": args.pseudocount}
+            "pseudocount": args.pseudocount, "cut_position": args.cut_position}
 
 
 def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
@@ -374,6 +374,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help="both: presence and absence enter the networks (4.4.1); positive: presence only (4.4.2)")
     p.add_argument("--pseudocount", type=float, default=0.0, metavar="A",
                    help="added to every CPT count; 0 counts relative frequencies as the thesis (default 0)")
+    p.add_argument("--cut-position", type=float, default=0.5, metavar="W",
+                   help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
     p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
