@@ -102,15 +102,15 @@ def decode_text(data: dict) -> str:
         raise ValueError(f"damaged text ({err})") from None
 
 
-def save_checkpoint(path, kind: str, payload: dict) -> Path:
-    """Write ``payload`` as a checkpoint of ``kind`` to ``path`` atomically."""
+def write_atomic(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file in the same folder: readers see the old
+    file or the whole new one, and no temporary file is left behind on failure."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps({"format": FORMAT, "kind": kind, "version": VERSION, **payload}, separators=(",", ":"))
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(handle, "w", encoding="utf-8") as out:
-            out.write(text)
+        with os.fdopen(handle, "wb") as out:
+            out.write(data)
             out.flush()
             os.fsync(out.fileno())
         os.replace(temporary, path)
@@ -118,6 +118,12 @@ def save_checkpoint(path, kind: str, payload: dict) -> Path:
         Path(temporary).unlink(missing_ok=True)
         raise
     return path
+
+
+def save_checkpoint(path, kind: str, payload: dict) -> Path:
+    """Write ``payload`` as a checkpoint of ``kind`` to ``path`` atomically."""
+    text = json.dumps({"format": FORMAT, "kind": kind, "version": VERSION, **payload}, separators=(",", ":"))
+    return write_atomic(path, text.encode("utf-8"))
 
 
 def load_checkpoint(path, kind: str) -> dict:

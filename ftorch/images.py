@@ -22,6 +22,11 @@ from .errors import InputError
 LUMA = (0.299, 0.587, 0.114)
 
 
+def to_uint8(image: Tensor) -> np.ndarray:
+    """A grey (H, W) image in [0, 1] as 8-bit pixels, clipped and rounded (for PNGs and OpenCV)."""
+    return (image.detach().cpu().clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+
+
 def as_image_batch(images, name: str = "images") -> Tensor:
     """Validate and convert ``images`` to a finite float batch (B, 1, H, W)."""
     if isinstance(images, np.ndarray):

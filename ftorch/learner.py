@@ -266,9 +266,10 @@ class DistinctiveFeatureLearner:
                 cuts = torch.tensor([net.threshold[f] for f in carriers], dtype=torch.float64)
                 powers = [distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present)
                           for d in others]
-                scores = [float(p.topk(k).values[-1]) if len(p) >= k else 0.0 for p in powers]
+                strongest = [p.topk(min(k, len(p))) for p in powers]
+                scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
                 if k > 1:
-                    self._mark_usage({carriers[i] for p in powers for i in p.topk(min(k, len(p))).indices.tolist()})
+                    self._mark_usage({carriers[i] for top in strongest for i in top.indices.tolist()})
             else:
                 scores = [0.0] * len(others)
             j = int(np.argmin(scores))
@@ -457,8 +458,8 @@ class DistinctiveFeatureLearner:
         self.min_information = float(state["min_information"])
         options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
         probe = DistinctiveFeatureLearner(**options)  # validates them
-        self.search_rounds, self.redundancy = probe.search_rounds, probe.redundancy
-        self.evidence, self.pseudocount, self.cut_position = probe.evidence, probe.pseudocount, probe.cut_position
+        for k in OPTIONS:
+            setattr(self, k, getattr(probe, k))
         self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
         self.networks = {}
         for record in state["networks"]:

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ftorch.errors import InputError
+from ftorch.images import to_uint8
 from ftorch.recognition import Recognition
 
 from .protocol import test_block
@@ -87,8 +88,7 @@ class PixelNN:
 
 def _descriptors(image: torch.Tensor) -> np.ndarray:
     """SIFT descriptors (K, 128) float32 of an image in [0, 1], K >= 0."""
-    pixels = (np.clip(image.detach().cpu().numpy(), 0, 1) * 255).round().astype(np.uint8)
-    _, found = cv2.SIFT_create().detectAndCompute(pixels, None)
+    _, found = cv2.SIFT_create().detectAndCompute(to_uint8(image), None)
     return np.zeros((0, 128), np.float32) if found is None else found
 
 

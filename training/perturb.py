@@ -18,8 +18,6 @@ from the seed and does not depend on the other kinds.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from functools import cache
 from pathlib import Path
 
@@ -28,7 +26,9 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_fill_holes
 
+from ftorch.checkpoint import write_atomic
 from ftorch.errors import InputError
+from ftorch.images import to_uint8
 
 KINDS = ("rotate", "clutter", "occlude", "pair")
 MASK_THRESHOLD = 0.05
@@ -70,17 +70,10 @@ def save_examples(images: list[torch.Tensor], names: list[str], folder, limit: i
     paths = []
     for image, name in list(zip(images, names))[:limit]:
         path = folder / f"{name.replace('/', '_')}.png"
-        pixels = (image.detach().cpu().clamp(0, 1).numpy() * 255).round().astype(np.uint8)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=folder)
-        os.close(handle)
-        try:
-            if not cv2.imwrite(temporary, pixels):
-                raise OSError(f"{path}: could not write the PNG")
-            os.replace(temporary, path)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
-        paths.append(path)
+        encoded, png = cv2.imencode(".png", to_uint8(image))
+        if not encoded:
+            raise OSError(f"{path}: could not encode the PNG")
+        paths.append(write_atomic(path, png.tobytes()))
     return paths
 
 

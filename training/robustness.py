@@ -16,6 +16,7 @@ import numpy as np
 
 from ftorch.draw import grid, save_rgb, titled
 from ftorch.environment import ImageSet
+from ftorch.images import to_uint8
 from ftorch.learner import DistinctiveFeatureLearner
 from ftorch.record import FeatureSpace
 
@@ -26,6 +27,16 @@ from .protocol import test_block
 
 SETS = ("clean", *KINDS)
 PEERS = ("pixel_nn", "sift")
+
+
+def views(task: Task, indices: list[int]) -> tuple[list, list[frozenset]]:
+    """Images ``indices`` of the task as grey tensors, with their true label sets."""
+    return [task.view(i) for i in indices], [frozenset({task.labels[i]}) for i in indices]
+
+
+def nodes(learner: DistinctiveFeatureLearner) -> list:
+    """Every (network, feature) node of the learner."""
+    return [(net, f) for net in learner.networks.values() for f in net.features]
 
 
 def fold_sets(images: list, labels: list[frozenset], kinds: list[str], seed: int) -> dict:
@@ -58,37 +69,37 @@ def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: lis
     (value above the node's cut-point) differs from the clean view's, a measure of how stable the
     features are under the perturbation."""
     out, states = {}, {}
-    nodes = [(net, f) for net in learner.networks.values() for f in net.features]
+    held = nodes(learner)
     for name, (images, labels) in sets.items():
         env = ImageSet(images, labels, space, progress=progress)
         recognitions = learner.recognize_many(env, range(len(env)))
         out[name] = {**test_block(recognitions, env.labels, classes),
                      "queried": float(np.mean([len(r.queried) for r in recognitions]))}
-        if nodes:
-            states[name] = node_states(nodes, env)
-            out[name].update(presence(nodes, states[name], env.labels))
+        if held:
+            states[name] = node_states(held, env)
+            out[name].update(presence(held, states[name], env.labels))
     for name in out:
         if name != "clean" and "clean" in states:
             out[name]["flipped"] = float((states[name] != states["clean"]).mean())
     return out
 
 
-def node_states(nodes: list, env: ImageSet) -> np.ndarray:
+def node_states(held: list, env: ImageSet) -> np.ndarray:
     """(nodes, images) bool: each (network, feature) node present (value above its cut-point)."""
-    values = env.values([f for _, f in nodes], list(range(len(env))))
-    return values > np.array([net.threshold[f] for net, f in nodes])[:, None]
+    values = env.values([f for _, f in held], list(range(len(env))))
+    return values > np.array([net.threshold[f] for net, f in held])[:, None]
 
 
-def presence(nodes: list, states: np.ndarray, labels: list[frozenset]) -> dict:
+def presence(held: list, states: np.ndarray, labels: list[frozenset]) -> dict:
     """How often a class network's nodes are present on views of that class (``present_own``) and of
     other classes (``present_other``): the features' recall and false-alarm rate."""
-    own = np.array([[net.label in l for l in labels] for net, _ in nodes])
+    own = np.array([[net.label in l for l in labels] for net, _ in held])
     return {"present_own": float(states[own].mean()) if own.any() else 0.0,
             "present_other": float(states[~own].mean()) if (~own).any() else 0.0}
 
 
 def learner_storage(learner: DistinctiveFeatureLearner) -> dict:
-    """Features per class network and the numbers each stores (its parts' descriptors)."""
+    """Features per class network: the mean and the largest."""
     sizes = [len(net.features) for net in learner.networks.values()]
     return {"features_per_class": float(np.mean(sizes)) if sizes else 0.0, "max_features_per_class": max(sizes, default=0)}
 
@@ -99,7 +110,7 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
     train, test = task.fold(fold)
     classes = task.classes()
     names = [task.names[i] for i in test]
-    sets = fold_sets([task.view(i) for i in test], [frozenset({task.labels[i]}) for i in test], kinds, seed * 1000 + fold)
+    sets = fold_sets(*views(task, test), kinds, seed * 1000 + fold)
     if out is not None:
         for name, (images, _) in sets.items():
             if name != "clean":
@@ -110,14 +121,14 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
     result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
               "storage": learner_storage(learner)}
     result["seconds"] = {"ours": time.perf_counter() - start}
-    nodes = [(net, f) for net in learner.networks.values() for f in net.features]
-    if nodes:  # the same on the training views, where the cut-points were set
-        trained = ImageSet([task.view(i) for i in train], [{task.labels[i]} for i in train], space)
-        result["train"] = presence(nodes, node_states(nodes, trained), trained.labels)
+    training = views(task, train)
+    held = nodes(learner)
+    if held:  # the same on the training views, where the cut-points were set
+        trained = ImageSet(*training, space)
+        result["train"] = presence(held, node_states(held, trained), trained.labels)
     if peers:
         start = time.perf_counter()
-        result["peers"] = peer_results([task.view(i) for i in train], [frozenset({task.labels[i]}) for i in train],
-                                       sets, classes)
+        result["peers"] = peer_results(*training, sets, classes)
         result["seconds"]["peers"] = time.perf_counter() - start
     return result
 
@@ -166,7 +177,7 @@ def overview(task: Task, sets: dict, test: list[int]) -> np.ndarray:
     panels = []
     for name, (images, _) in sets.items():
         for label, k in first.items():
-            grey = (np.clip(images[k].numpy(), 0, 1) * 255).round().astype(np.uint8)
+            grey = to_uint8(images[k])
             grey = np.kron(grey, np.ones((-(-96 // grey.shape[0]),) * 2, np.uint8))  # small views enlarged
             panels.append(titled(np.repeat(grey[..., None], 3, axis=2), f"{name}: {label}"))
     return grid(panels, len(first))
@@ -177,10 +188,8 @@ def split_peers(task: Task, folds: list[int]) -> dict:
     results = []
     for k in folds:
         train, test = task.fold(k)
-        sets = {"clean": ([task.view(i) for i in test], [frozenset({task.labels[i]}) for i in test])}
         start = time.perf_counter()
-        results.append({"fold": k, **peer_results([task.view(i) for i in train],
-                                                  [frozenset({task.labels[i]}) for i in train], sets, task.classes()),
+        results.append({"fold": k, **peer_results(*views(task, train), {"clean": views(task, test)}, task.classes()),
                         "seconds": time.perf_counter() - start})
     mean = {p: {key: float(np.mean([r[p][key]["accuracy"] if isinstance(r[p][key], dict) else r[p][key] for r in results]))
                 for key in results[0][p]} for p in PEERS}

@@ -33,7 +33,7 @@ from ftorch import FeatureSpace, load_image
 from ftorch.draw import draw_features, draw_salient, grid, save_rgb, titled
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.learner import EVIDENCE, DistinctiveFeatureLearner
+from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
@@ -160,8 +160,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
 
 def learner_options(args) -> dict:
     """The learner's generalization options from the command line (ftorch.learner.OPTIONS)."""
-    return {"search_rounds": args.search_rounds, "redundancy": args.redundancy, "evidence": args.evidence,
-            "pseudocount": args.pseudocount, "cut_position": args.cut_position}
+    return {k: getattr(args, k) for k in OPTIONS}
 
 
 def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
@@ -313,7 +312,8 @@ def robustness_command(args) -> int:
     try:
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
-        task = load_task(config["task"], args.data or config["data"], len(config["classes"]), config["views"],
+        data = args.data or config["data"]
+        task = load_task(config["task"], data, len(config["classes"]), config["views"],
                          config["size"], config["seed"], config["first_view"])
         folds = [f["fold"] for f in report["folds"]]
     except (OSError, ValueError, KeyError, TypeError) as err:
@@ -328,7 +328,7 @@ def robustness_command(args) -> int:
         if args.evidence != "learned":
             learner.evidence = args.evidence
         results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
-    result = {"run": str(run), "data": str(args.data or config["data"]), "seed": args.seed, "sets": kinds,
+    result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
               "evidence": args.evidence, "learner": config, "folds": results,
               "average": average_robustness(results), "seconds": time.perf_counter() - start}
     write_json(out / "robustness.json", result)
