@@ -41,6 +41,16 @@ def information(joint: np.ndarray) -> np.ndarray:
     return (joint * np.log2(ratio)).sum((1, 2))
 
 
+def _check_distribution(name: str, table: np.ndarray, shape: tuple) -> None:
+    """ValueError unless ``table`` has ``shape`` and holds distributions over its last axis."""
+    if table.shape != shape:
+        raise ValueError(f"{name} has shape {table.shape}, expected {shape}")
+    if not (np.all(np.isfinite(table)) and np.all((table >= 0) & (table <= 1))):
+        raise ValueError(f"{name} has entries that are not probabilities (NaN, infinite or outside [0, 1])")
+    if not np.allclose(table.sum(-1), 1.0, rtol=0, atol=1e-6):
+        raise ValueError(f"{name} does not sum to 1 over the node's states")
+
+
 def _normalised(tables: np.ndarray) -> np.ndarray:
     """Each table (k, ...) divided by its sum; NaN where the sum is zero (impossible evidence)."""
     axes = tuple(range(1, tables.ndim))
@@ -215,6 +225,27 @@ class ClassNetwork:
             if key in parents:
                 parents.remove(key)
                 self.cpt[node] = np.full((2,) * (len(parents) + 2), 0.5)
+
+    def validate(self) -> None:
+        """ValueError unless this is a valid network: a prior and CPTs that are distributions
+        (finite entries in [0, 1] summing to 1 over the node's own states), CPTs of the shape
+        their parents give, thresholds in [0, 1], arcs between distinct nodes of the network and
+        no cycle. Loaders call it, so a damaged file never recognizes with wrong tables."""
+        name = f"network of class {self.label!r}"
+        if len(set(self.features)) != len(self.features) or set(self.features) != set(self.parents):
+            raise ValueError(f"{name}: a feature node appears twice")
+        if set(self.threshold) != set(self.features) or set(self.cpt) != set(self.features):
+            raise ValueError(f"{name}: thresholds or CPTs do not match its feature nodes")
+        _check_distribution(f"{name}: prior", self.prior, (2,))
+        for i, key in enumerate(self.features):
+            parents = self.parents[key]
+            if len(set(parents)) != len(parents) or key in parents or any(p not in self for p in parents):
+                raise ValueError(f"{name}: node {i} has an arc from itself, twice, or from outside the network")
+            if key in self._descendants(key):
+                raise ValueError(f"{name}: node {i} lies on a cycle")
+            if not 0.0 <= self.threshold[key] <= 1.0:  # also refuses NaN
+                raise ValueError(f"{name}: node {i} has threshold {self.threshold[key]}, outside [0, 1]")
+            _check_distribution(f"{name}: CPT of node {i}", self.cpt[key], (2,) * (len(parents) + 2))
 
     def _descendants(self, key) -> set:
         out, todo = set(), [key]

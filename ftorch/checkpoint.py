@@ -109,6 +109,7 @@ def write_atomic(path, data: bytes) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.chmod(temporary, 0o666 & ~_umask())  # mkstemp makes 0600 files; a written file follows the umask
         with os.fdopen(handle, "wb") as out:
             out.write(data)
             out.flush()
@@ -118,6 +119,17 @@ def write_atomic(path, data: bytes) -> Path:
         Path(temporary).unlink(missing_ok=True)
         raise
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it: put it straight back
+    os.umask(mask)
+    return mask
+
+
+def write_text(path, text: str) -> Path:
+    """:func:`write_atomic` for text (UTF-8)."""
+    return write_atomic(path, text.encode("utf-8"))
 
 
 def save_checkpoint(path, kind: str, payload: dict) -> Path:

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from .checkpoint import write_atomic
 from .evaluate import feature_values
 from .features import Feature, LocalFeature
 from .record import ImageRecords
@@ -83,9 +84,11 @@ def draw_salient(records: ImageRecords, n: int, image, min_side: int = 384) -> n
 
 
 def save_rgb(path, picture: np.ndarray) -> None:
-    """Write an RGB uint8 array as PNG."""
-    if not cv2.imwrite(str(path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {path}")
+    """Write an RGB uint8 array as PNG (atomically)."""
+    done, png = cv2.imencode(".png", cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
+    if not done:
+        raise ValueError(f"could not encode a picture of shape {picture.shape} for {path}")
+    write_atomic(path, png.tobytes())
 
 
 PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 200, 200),

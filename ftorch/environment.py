@@ -39,19 +39,20 @@ class ImageSet:
         self.labels = [frozenset(l) for l in labels]
         self.names = list(names) if names is not None else [
             Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
-        self.images = [self._grey(x, i) for i, x in enumerate(images)]
+        sources = [str(x) if isinstance(x, (str, Path)) else name for x, name in zip(images, self.names)]
+        self.images = [self._grey(x, source) for x, source in zip(images, sources)]
         self.space = space or FeatureSpace()
         with torch.no_grad():
-            self.all_records = self.space.records(self.images, progress=progress)
+            self.all_records = self.space.records(self.images, progress=progress, names=sources)
         self._single: dict[int, ImageRecords] = {}
         self._row: dict[Feature, int] = {}
         self._cache = np.zeros((0, len(self.labels)))
 
     @staticmethod
-    def _grey(item, i: int) -> torch.Tensor:
+    def _grey(item, name: str) -> torch.Tensor:
         if isinstance(item, (str, Path)):
             return load_image(item)
-        return as_image_batch(item, f"images[{i}]")[0, 0]
+        return as_image_batch(item, name)[0, 0]
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -122,6 +123,8 @@ class ImageSet:
             raise InputError(f"value cache is damaged: {err}") from None
         if table.shape != (len(features), len(self)):
             raise InputError(f"value cache holds {table.shape}, expected ({len(features)}, {len(self)}) for this image set")
+        if not np.all(np.isnan(table) | ((table >= 0) & (table <= 1 + 1e-6))):  # NaN: not yet measured
+            raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
         self._row = {f: i for i, f in enumerate(features)}
         self._cache = table
 

@@ -88,6 +88,19 @@ def _label(value):
     return value
 
 
+def _position(index, size: int) -> int:
+    """A stored reference into a table of ``size`` entries; ValueError unless a valid position."""
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < size:
+        raise ValueError(f"reference {index!r} into a table of {size} entries")
+    return index
+
+
+def _count(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"count {value!r} is not an integer >= 0")
+    return value
+
+
 class DistinctiveFeatureLearner:
     """Learns class networks of distinctive features from labelled images, one at a time.
 
@@ -454,26 +467,31 @@ class DistinctiveFeatureLearner:
         kept one); ValueError or InputError where it is damaged. A recognition-only state gives a
         learner that recognizes but refuses to learn."""
         features = unpack_features(state["features"]) if features is None else features
+        at = lambda i: features[_position(i, len(features))]  # noqa: E731
         self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
         self.min_information = float(state["min_information"])
         options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
-        probe = DistinctiveFeatureLearner(**options)  # validates them
+        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **options)  # validates them
         for k in OPTIONS:
             setattr(self, k, getattr(probe, k))
-        self.presentations, self.sampled = int(state["presentations"]), int(state["sampled"])
+        self.presentations, self.sampled = _count(state["presentations"]), _count(state["sampled"])
         self.networks = {}
         for record in state["networks"]:
-            net = ClassNetwork(record["label"])
-            keys = [features[i] for i in record["features"]]
+            net = ClassNetwork(_label(record["label"]))
+            keys = [at(i) for i in record["features"]]
+            if not len(keys) == len(record["parents"]) == len(record["threshold"]) == len(record["cpt"]):
+                raise ValueError(f"network of class {net.label!r}: {len(keys)} features but "
+                                 f"{len(record['parents'])} parent lists, {len(record['threshold'])} thresholds "
+                                 f"and {len(record['cpt'])} CPTs")
             net.features = keys
-            net.parents = {k: [features[p] for p in ps] for k, ps in zip(keys, record["parents"])}
+            net.parents = {k: [at(p) for p in ps] for k, ps in zip(keys, record["parents"])}
             net.threshold = {k: float(t) for k, t in zip(keys, record["threshold"])}
             net.prior = np.array(record["prior"], dtype=float)
             for k, table in zip(keys, record["cpt"]):
-                table = decode_array(table)
-                if table.shape != (2,) * (len(net.parents[k]) + 2):
-                    raise ValueError(f"CPT of shape {table.shape} for a node with {len(net.parents[k])} feature parents")
-                net.cpt[k] = table
+                net.cpt[k] = decode_array(table)
+            net.validate()
+            if net.label in self.networks:
+                raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net
         self.trainable = "instances" in state
         self.discriminates, self.usage, self.instances = {}, {}, InstanceList()
@@ -481,15 +499,17 @@ class DistinctiveFeatureLearner:
         if not self.trainable:
             return
         self.generator.set_state(torch.from_numpy(decode_array(state["generator"]).astype(np.uint8)))
-        self.discriminates = {(c, features[f]): frozenset(d) for c, f, d in state["discriminates"]}
-        self.usage = {features[f]: int(n) for f, n in state["usage"]}
+        self.discriminates = {(c, at(f)): frozenset(d) for c, f, d in state["discriminates"]}
+        self.usage = {at(f): _count(n) for f, n in state["usage"]}
         block = state["instances"]
         for image, labels in zip(block["images"], block["labels"]):
             self.instances.add(image, labels)
-        columns = [features[i] for i in block["features"]]
+        columns = [at(i) for i in block["features"]]
         values = decode_array(block["values"])
         if values.shape != (len(self.instances), len(columns)):
             raise ValueError(f"instance values of shape {values.shape} for {len(self.instances)} images and {len(columns)} features")
+        if not np.all(np.isnan(values) | ((values >= 0) & (values <= 1 + 1e-6))):  # cosines may round just above 1
+            raise ValueError("instance values outside [0, 1] (feature values are similarities, eq. 3.13)")
         if columns:
             self.instances.set_block(self.instances.images, columns, values.T)
 

@@ -206,13 +206,16 @@ class FeatureSpace(nn.Module):
         space = self.scale_space(images)
         return ImageRecords.build(space, self.salient(space))
 
-    def records(self, images: Sequence, batch_size: int = 16, progress: bool = False) -> ImageRecords:
+    def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
+                names: Sequence[str] | None = None) -> ImageRecords:
+        """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
+        name the images in errors (default: the file path, or images[i])."""
         if len(images) == 0:
             raise InputError("images: the sequence is empty")
         device = next(iter(self.scale_space.buffers())).device
         loaded = []
         for i, item in enumerate(images):
-            name = str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
+            name = names[i] if names is not None else str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
             image = load_image(item) if isinstance(item, (str, Path)) else item
             batch = as_image_batch(image, name)
             if batch.shape[0] != 1:

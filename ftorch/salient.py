@@ -13,6 +13,11 @@
   that fraction of the image's strongest one; it only removes numerical noise in flat regions
   and near-flat maxima whose descriptors match any flat region (the text uses no prominence
   threshold; the default 0.01 is far below any real structure).
+- Flat images have no salient points: a point is kept only where one of its five basis responses
+  exceeds ``min_response`` in magnitude (default 1e-5, on images in [0, 1]). Rounding noise on a
+  constant image stays below 1e-7; a single pixel one grey level (1/255) off its surroundings
+  already gives 6e-4, so the floor removes noise and nothing an 8-bit image can show. Without it
+  the relative threshold alone would keep hundreds of "maxima" of that noise.
 """
 from __future__ import annotations
 
@@ -42,27 +47,29 @@ class Points:
 
 
 class SalientPoints(nn.Module):
-    def __init__(self, rel_threshold: float = 1e-2):
+    def __init__(self, rel_threshold: float = 1e-2, min_response: float = 1e-5):
         super().__init__()
         self.rel_threshold = float(rel_threshold)
+        self.min_response = float(min_response)
 
     def _threshold(self, f: Tensor, valid: Tensor) -> Tensor:
         strongest = torch.where(valid, f, torch.zeros((), dtype=f.dtype, device=f.device))
         return self.rel_threshold * strongest.flatten(1).amax(1)
 
-    def _scale_maxima(self, f: Tensor, valid: Tensor) -> Tensor:
+    def _scale_maxima(self, f: Tensor, valid: Tensor, structured: Tensor) -> Tensor:
         pooled = f
         for dim in (1, 2, 3):  # the 3x3x3 maximum is separable
             pooled = _max3(pooled, dim)
         levels = f.shape[1]
         interior = torch.zeros(levels, dtype=torch.bool, device=f.device)
         interior[1 : levels - 1] = True
-        keep = (f >= pooled) & valid[None] & interior[None, :, None, None]
+        keep = (f >= pooled) & valid[None] & interior[None, :, None, None] & structured
         return keep & (f > self._threshold(f, valid)[:, None, None, None])
 
     def forward(self, space: ScaleSpaceOutput) -> Points:
         blob, corner, edge = space.scale_functions()
         valid = space.valid
+        structured = space.responses.abs().amax(2) > self.min_response  # (B, S, H, W): not flat
         batch, levels, height, width = edge.shape
         # edge projection over the levels whose kernel fits (example 3.3)
         fitted = torch.where(valid[None], edge, torch.full_like(edge, -1.0))
@@ -82,14 +89,14 @@ class SalientPoints(nn.Module):
         )
         ahead = _bilinear(projected, xs + torch.cos(theta), ys + torch.sin(theta))
         behind = _bilinear(projected, xs - torch.cos(theta), ys - torch.sin(theta))
-        edgels = pixel_valid & (projected > ahead) & (projected >= behind)
+        edgels = pixel_valid & (projected > ahead) & (projected >= behind) & structured.gather(1, edge_level[:, None])[:, 0]
         edgels &= projected > self._threshold(projected[:, None], valid[:1])[:, None, None]
 
         found = []
         b, y, x = edgels.nonzero(as_tuple=True)
         found.append((b, y, x, edge_level[b, y, x], EDGEL, projected[b, y, x]))
         for kind, f in ((BLOB, blob), (CORNER, corner)):
-            b, k, y, x = self._scale_maxima(f, valid).nonzero(as_tuple=True)
+            b, k, y, x = self._scale_maxima(f, valid, structured).nonzero(as_tuple=True)
             found.append((b, y, x, k, kind, f[b, k, y, x]))
         image = torch.cat([f[0] for f in found])
         order = torch.argsort(image, stable=True)

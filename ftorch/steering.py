@@ -37,7 +37,7 @@ def steer_block(block: Tensor, angle: Tensor) -> Tensor:
 
 def steer(vector: Tensor, angle: Tensor) -> Tensor:
     """Steer a vector made of whole basis blocks (..., 5k), e.g. a 15-d texel, by ``angle`` (...)."""
-    blocks = vector.reshape(*vector.shape[:-1], -1, 5)
+    blocks = vector.reshape(*vector.shape[:-1], vector.shape[-1] // 5, 5)  # also for zero vectors
     return steer_block(blocks, angle[..., None]).reshape(vector.shape)
 
 

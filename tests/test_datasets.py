@@ -48,7 +48,7 @@ def test_coil_size_area_averages_to_the_shared_32_pixel_images(coil_dir):
     assert load_task("coil", full, 2, 3, size=128).images[0].shape == (128, 128)
     with pytest.raises(InputError, match="can only reduce"):
         coil_task(coil_dir, classes=2, views=2, size=64)
-    with pytest.raises(InputError, match="at least 8 pixels"):
+    with pytest.raises(InputError, match="at least 9 pixels"):
         coil_task(coil_dir, classes=2, views=2, size=0)
     with pytest.raises(InputError, match="not to class folders"):
         load_task("folder", coil_dir, size=16)

@@ -172,13 +172,17 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
 
 @pytest.mark.parametrize("argv, message", [
     (["recognize", "--stages", "many"], "expected a number of expert stages"),
-    (["recognize", "--n-ex", "0"], "n_ex and n_fgen must be at least 1"),
-    (["recognize", "--size", "8"], "too small"),
+    (["recognize", "--n-fgen", "0"], "--n-fgen: 0: expected a number of candidates (an integer >= 1)"),
+    (["recognize", "--size", "8"], "--size: 8: expected an image side in pixels (an integer >= 9)"),
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
     (["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
 ])
 def test_bad_runs_get_one_clear_line(argv, message, capsys):
-    assert run.main(argv) == 2
+    try:
+        code = run.main(argv)
+    except SystemExit as exit:  # argparse refuses bad option values itself
+        code = exit.code
+    assert code == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and message in err and "\n" not in err
 

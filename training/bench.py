@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace, ScaleSpace
+from ftorch.checkpoint import write_text
 from ftorch.bayes import ClassNetwork, information
 from ftorch.evaluate import feature_values
 from ftorch.features import Conjunction, Disjunction
@@ -280,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         print_report(report)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
+        write_text(args.json, json.dumps(report, indent=2) + "\n")
     return 0
 
 

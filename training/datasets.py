@@ -7,6 +7,7 @@ on 1, 3, 5, ...; fold 2 swaps the roles.
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,6 +55,21 @@ def _folder(root) -> Path:
     return root
 
 
+def _files(root: Path) -> list[Path]:
+    """Every file below ``root`` in name order, following symbolic links to folders (each real
+    folder once, so a link cycle ends)."""
+    seen, out = set(), []
+    for folder, subfolders, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(folder)
+        if real in seen:
+            subfolders.clear()
+            continue
+        seen.add(real)
+        subfolders.sort()
+        out += [Path(folder) / f for f in sorted(files)]
+    return out
+
+
 def reduced(path: Path, size: int) -> torch.Tensor:
     """The image at ``path`` area-averaged (``cv2.INTER_AREA``) so that its shorter side is ``size``
     pixels: for an integer factor, the mean of each block, as ``coil-20-32`` was made (before rounding)."""
@@ -71,20 +87,25 @@ def reduced(path: Path, size: int) -> torch.Tensor:
 def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0, size: int | None = None) -> Task:
     """COIL objects 1..``classes``, ``views`` consecutive views from ``first_view`` (5 degrees apart).
 
-    Files are found anywhere below ``root`` by their original names ``obj{k}__{view}.png``
+    Files are found anywhere below ``root`` (symbolic links followed) by their original names
+    ``obj{k}__{view}.png`` in any letter case; a name found twice is refused, naming both files
     (any image size), so both a flat folder and the original COIL layout work. With ``size``
     the images are loaded and reduced by area averaging to that shorter side (:func:`reduced`).
     """
-    if size is not None and size < 8:
-        raise InputError(f"--size {size}: expected at least 8 pixels")
+    if size is not None and size < 9:
+        raise InputError(f"--size {size}: expected at least 9 pixels (the smallest image the scale space takes)")
     root = _folder(root)
     if classes < 2 or views < 2:
         raise InputError(f"the COIL task needs at least 2 classes and 2 views, got {classes} and {views}")
     found = {}
-    for path in root.rglob("*.png"):
+    for path in _files(root):
         match = COIL_NAME.match(path.name)
         if match:
-            found.setdefault((int(match[1]), int(match[2])), path)
+            key = (int(match[1]), int(match[2]))
+            if key in found:
+                raise InputError(f"--data {root}: COIL image obj{key[0]}__{key[1]} is there twice: "
+                                 f"{found[key]} and {path}; keep one")
+            found[key] = path
     images, labels, names, positions = [], [], [], []
     for k in range(1, classes + 1):
         for j in range(views):
@@ -103,8 +124,8 @@ def folder_task(root) -> Task:
     """``root/<class>/<image>``: every class folder holds that class's views, in file-name order."""
     root = _folder(root)
     images, labels, names, positions = [], [], [], []
-    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
-        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):  # is_dir follows links
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
         for j, path in enumerate(files):
             images.append(path)
             labels.append(folder.name)

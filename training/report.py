@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from ftorch.checkpoint import write_text
+
 from .protocol import OUTCOMES
 
 THESIS_TABLE_4_2 = {  # average rows of table 4.2 (stage 0), for comparison
@@ -91,7 +93,7 @@ def seed_study(runs: list[dict], seeds: list[int]) -> dict:
 
 
 def write_json(path: Path, report: dict) -> None:
-    path.write_text(json.dumps(report, indent=2) + "\n")
+    write_text(path, json.dumps(report, indent=2) + "\n")
 
 
 def _p(value: float) -> str:
@@ -262,4 +264,4 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
                   "(figure 5.1 form).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
-    path.write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))

@@ -30,13 +30,16 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace, load_image
+from ftorch.checkpoint import write_text
 from ftorch.draw import draw_features, draw_salient, grid, save_rgb, titled
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
+from training.arguments import MAX_SEED, at_least, number, seed
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
+from training.outputs import run_folder, writable_folder
 from training.parallel import TasksFailed, run_tasks
 from training.protocol import Fold, confusion, feature_block, test_block
 from training.curves import write_curves
@@ -47,8 +50,7 @@ from training.report import ambiguity_table, build_report, confusion_table, seed
 
 def salient(args) -> int:
     device = resolve_device(args.device)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = writable_folder(args.out)
     if args.images:
         names = [Path(p) for p in args.images]
         images = [load_image(p) for p in names]
@@ -57,11 +59,13 @@ def salient(args) -> int:
         images = [torch.from_numpy(builtin_scene())]
     space = FeatureSpace(truncate=args.truncate).to(device)
     with torch.no_grad():
-        records = space.records(images, progress=len(images) > 4)
+        records = space.records(images, progress=len(images) > 4, names=[str(p) for p in names])
     counts = records.counts()
     summary = []
+    stems = [name.stem for name in names]
     for n, (name, image) in enumerate(zip(names, images)):
-        target = out / f"{name.stem}_salient.png"
+        stem = stems[n] if stems.count(stems[n]) == 1 else f"{n + 1}-{stems[n]}"  # a/x.png and b/x.png: two figures
+        target = out / f"{stem}_salient.png"
         save_rgb(target, draw_salient(records, n, image))
         row = {"image": str(name), "edgels": counts["edgels"][n], "blobs": counts["blobs"][n],
                "corners": counts["corners"][n], "figure": str(target)}
@@ -69,7 +73,7 @@ def salient(args) -> int:
         summary.append(row)
         print(f"{name}: {row['edgels']} edgels, {row['texels']} texels "
               f"({row['blobs']} blobs, {row['corners']} corners) -> {target}")
-    (out / "salient.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(out / "salient.json", json.dumps(summary, indent=2) + "\n")
     return 0
 
 
@@ -126,7 +130,7 @@ PSEUDOCOUNT, REDUNDANCY = 1.0, 3
 def _stages(text: str) -> int | None:
     if text == "auto":
         return None
-    if text.isdigit():
+    if text.isascii() and text.isdigit():  # "²".isdigit() holds too
         return int(text)
     raise InputError(f"--stages {text!r}: expected a number of expert stages (0, 1, ...) or auto")
 
@@ -200,33 +204,27 @@ def fold_task(job: dict) -> dict:
     figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
     (fold.folder / "networks").mkdir(exist_ok=True)
     for label, net in learner.networks.items():
-        (fold.folder / "networks" / f"{label}.bif").write_text(net.to_bif())
+        write_text(fold.folder / "networks" / f"{label}.bif", net.to_bif())
     return {"entry": entry, "figures": figures}
 
 
 def recognize_command(args, incremental: bool = False) -> int:
     device = resolve_device(args.device)
     _stages(args.stages)
-    if args.folds not in (1, 2):
-        raise InputError(f"--folds {args.folds}: expected 1 or 2")
-    if args.max_cycles < 1:
-        raise InputError(f"--max-cycles {args.max_cycles}: expected at least 1")
-    if args.seeds < 1:
-        raise InputError(f"--seeds {args.seeds}: expected at least 1")
-    if args.workers < 1:
-        raise InputError(f"--workers {args.workers}: expected at least 1")
+    if args.seed + args.seeds - 1 > MAX_SEED:
+        raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information,
                               **learner_options(args))  # refuses bad parameters early
     start = time.perf_counter()
+    out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
+    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite)
+    args.checkpoints = out  # where an interrupted run continues from (main)
     torch.manual_seed(args.seed)
     task = load_task(*_task_key(args))
     _TASKS.clear()
     _TASKS[_task_key(args)] = task
-    name = f"{task.name}-inc" if incremental else task.name
-    out = Path(args.out or f"runs/{name}")
-    logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
     parallel = args.workers > 1 or args.ray is not None
-    settings = {k: v for k, v in vars(args).items() if k != "run"}
+    settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the tasks instead of one per fold
     jobs = [{"args": settings, "fold": k, "seed": args.seed, "out": str(out), "logdir": str(logdir),
              "incremental": incremental} for k in range(1, args.folds + 1)]
@@ -270,6 +268,7 @@ def recognize_command(args, incremental: bool = False) -> int:
 
 def evaluate_command(args) -> int:
     device = resolve_device(args.device)
+    out = writable_folder(args.out)
     learner = DistinctiveFeatureLearner.load(args.checkpoint)
     task = load_task(args.task, args.data, args.classes, args.views, first_view=args.first_view)
     known = [str(c) for c in learner.networks]
@@ -284,13 +283,11 @@ def evaluate_command(args) -> int:
               "confusion": confusion(recognitions, env.labels, classes, learner.networks),
               "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.checkpoint} on {args.data}", "",
              f"accuracy {result['test']['accuracy']:.2f}; " + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
              "", *confusion_table(result["confusion"], classes), "", *ambiguity_table(result["confusion"], classes), ""]
-    (out / "evaluate.md").write_text("\n".join(lines))
+    write_text(out / "evaluate.md", "\n".join(lines))
     print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, correct {result['test']['correct']:.2f}; "
           f"report: {out / 'evaluate.md'}")
     return 0
@@ -309,6 +306,7 @@ def robustness_command(args) -> int:
     device = resolve_device(args.device)
     kinds = _perturbations(args.perturb)
     run = Path(args.checkpoint)
+    out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
     try:
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
@@ -318,8 +316,6 @@ def robustness_command(args) -> int:
         folds = [f["fold"] for f in report["folds"]]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
-    out = Path(args.out) if args.out else run / "robustness"
-    out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     space = FeatureSpace().to(device)
     results = []
@@ -337,7 +333,7 @@ def robustness_command(args) -> int:
              "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
              "the clean view's.", "", *robustness_table(result), "",
              *[f"![fold {k}](fold{k}/overview.png)" for k in folds], ""]
-    (out / "robustness.md").write_text("\n".join(lines))
+    write_text(out / "robustness.md", "\n".join(lines))
     print("\n".join(robustness_table(result)))
     print(f"report: {out / 'robustness.md'} and {out / 'robustness.json'}; perturbed images in {out}/foldK/SET/")
     return 0
@@ -346,53 +342,62 @@ def robustness_command(args) -> int:
 def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
-    p.add_argument("--classes", type=int, help="the first N classes: COIL objects 1..N (default 6), Plym solids (default all 8)")
-    p.add_argument("--views", type=int, default=20, help="consecutive COIL views per object (default 20)")
-    p.add_argument("--first-view", type=int, default=0, help="first COIL view (default 0)")
+    p.add_argument("--classes", type=at_least(2, "a number of classes"), help="the first N classes: COIL objects 1..N (default 6), Plym solids (default all 8)")
+    p.add_argument("--views", type=at_least(2, "a number of views"), default=20, help="consecutive COIL views per object (default 20)")
+    p.add_argument("--first-view", type=at_least(0, "a view number"), default=0, help="first COIL view (default 0)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     _task_options(p, ("plym", "coil", "folder"), default)
-    p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
+    p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--stages", default="auto", help="expert stages after stage 0 (0: chapter 4 learning only), "
                    "or auto: until t_KSD = 1 or two stages in a row miss their target (default auto)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--seeds", type=int, default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
+    p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--seeds", type=at_least(1, "a number of seeds"), default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
                    "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
-    p.add_argument("--size", type=int, help="image side in pixels: Plym renders at it (default 64); COIL images "
+    p.add_argument("--size", type=at_least(9, "an image side in pixels"), help="image side in pixels: Plym renders at it (default 64); COIL images "
                    "are area-averaged down to it on load (default: as stored, e.g. 32 or 128)")
-    p.add_argument("--n-ex", type=int, default=5, help="example images per class, alg. 4.8 (default 5)")
-    p.add_argument("--n-fgen", type=int, default=10, help="candidates per generation method, alg. 4.10 (default 10)")
-    p.add_argument("--min-information", type=float, default=MIN_INFORMATION, metavar="BITS",
+    p.add_argument("--n-ex", type=at_least(1, "a number of images"), default=5, help="example images per class, alg. 4.8 (default 5)")
+    p.add_argument("--n-fgen", type=at_least(1, "a number of candidates"), default=10, help="candidates per generation method, alg. 4.10 (default 10)")
+    p.add_argument("--min-information", type=number, default=MIN_INFORMATION, metavar="BITS",
                    help=f"stop a recognition once no unqueried feature has more mutual information with a class "
                         f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same splits")
-    p.add_argument("--search-rounds", type=int, default=1, metavar="N",
+    p.add_argument("--search-rounds", type=at_least(1, "a number of calls"), default=1, metavar="N",
                    help="calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate reaches t_KSD (default 1)")
-    p.add_argument("--redundancy", type=int, default=REDUNDANCY, metavar="K",
+    p.add_argument("--redundancy", type=at_least(1, "a number of features"), default=REDUNDANCY, metavar="K",
                    help=f"distinctive features each needed class distinction should have, 7.2.4 (default {REDUNDANCY}; "
                         "1: alg. 5.2 as printed)")
     p.add_argument("--evidence", choices=EVIDENCE, default="both",
                    help="both: presence and absence enter the networks (4.4.1); positive: presence only (4.4.2)")
-    p.add_argument("--pseudocount", type=float, default=PSEUDOCOUNT, metavar="A",
+    p.add_argument("--pseudocount", type=number, default=PSEUDOCOUNT, metavar="A",
                    help=f"added to every CPT count (default {PSEUDOCOUNT:g}; 0: relative frequencies as the thesis)")
-    p.add_argument("--cut-position", type=float, default=0.5, metavar="W",
+    p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
-    p.add_argument("--max-cycles", type=int, default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
+    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles"), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
-    p.add_argument("--workers", type=int, default=1, help="run the folds and seeds as N local processes at once "
+    p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (without it, or --resume, "
+                   "a folder that holds a run is refused)")
+    p.add_argument("--workers", type=at_least(1, "a number of processes"), default=1, help="run the folds and seeds as N local processes at once "
                    "(default 1: one after another); the report is the same")
     p.add_argument("--ray", metavar="ADDRESS", help="run the folds and seeds as tasks on a Ray cluster (ray.init "
                    "address, e.g. auto or ray://HEAD:10001; local: a local instance with --workers CPUs); "
                    "needs the distributed extra")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad options are one line, as every other bad input (argparse's usage line is left out)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
 def parser() -> argparse.ArgumentParser:
-    top = argparse.ArgumentParser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
+    top = _Parser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command")
     p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
     _training_options(p, "plym")
@@ -413,7 +418,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same images")
     p.add_argument("--evidence", choices=("learned", *EVIDENCE), default="learned",
                    help="recognize with the evidence mode the learner was trained with (default) or another")
-    p.add_argument("--seed", type=int, default=0, help="seed of the perturbations (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the perturbations (default 0)")
     p.add_argument("--out", help="output folder (default CHECKPOINT/robustness)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -422,7 +427,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("images", nargs="*", help="image files (default: the built-in scene)")
     p.add_argument("--out", default="runs/salient", help="output folder (default: runs/salient)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
-    p.add_argument("--truncate", type=float, default=3.0, help="kernel radius in sigmas (default 3)")
+    p.add_argument("--truncate", type=number, default=3.0, help="kernel radius in sigmas (default 3)")
     p.set_defaults(run=salient)
     return top
 
@@ -435,6 +440,14 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # e.g. a disk that filled up while writing; writes are atomic, nothing half-written
+        print(f"error: {err.filename or 'output'}: {err.strerror or err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        where = getattr(args, "checkpoints", None)
+        print("interrupted" + (f"; the checkpoints in {where} keep every finished cycle: run the same command "
+                               "with --resume to continue" if where else ""), file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

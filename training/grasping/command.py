@@ -12,7 +12,9 @@ from ftorch import FeatureSpace
 from ftorch.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
 from ftorch.grasp import MU0_CAP, GraspLearner
+from training.arguments import number, seed
 from training.devices import resolve_device
+from training.outputs import run_folder
 from training.report import write_json
 
 from .experiment import EXPERIMENTS, GraspFold, simulate_pool
@@ -90,8 +92,7 @@ def grasp_command(args) -> int:
     torch.manual_seed(args.seed)
     settings = config(args, device)
     out = Path(args.out or f"runs/grasp-{args.experiment}")
-    logdir = Path(args.logdir) if args.logdir else out / "tensorboard"
-    out.mkdir(parents=True, exist_ok=True)
+    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite)
     controller = HapticController()
     space = FeatureSpace().to(device)
     pool = simulate_pool(args.experiment, args.pool, args.seed, args.size, controller, not args.quiet)
@@ -150,11 +151,11 @@ def add_parser(commands) -> None:
     p = commands.add_parser("grasp", help="grasp pre-shaping experiments of chapter 6 (figures 6.13, 6.14, 6.17)")
     p.add_argument("--experiment", choices=EXPERIMENTS, default="clean",
                    help="clean (6.13a), noisy (6.13b), cue (6.14) or mixed (6.17; default clean)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--pool", type=int, default=80, help="simulated grasps per category (object kind and fingers; default 80)")
     p.add_argument("--best", type=int, default=20, help="training grasps per category and fold (default 20)")
     p.add_argument("--epochs", type=int, default=10, help="passes over the training grasps (default 10)")
-    p.add_argument("--t-dtheta", type=float, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
+    p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
     p.add_argument("--size", type=int, default=64, help="camera image side in pixels (default 64)")
     p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
@@ -162,6 +163,7 @@ def add_parser(commands) -> None:
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--out", help="run folder (default runs/grasp-EXPERIMENT)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
+    p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (refused without it)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=grasp_command)
 

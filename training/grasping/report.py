@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftorch.checkpoint import write_text
 from ftorch.grasp import MU0_CAP
 
 from .experiment import POOR_MU0
@@ -107,4 +108,4 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
         lines.append(f"| {fold['fold']} | {fold['mode']} | {len(fold['epochs'])} | {last['mistakes']:.2f} | "
                      f"{last['features_2']} / {last['features_3']} | {last['sampled_2']} / {last['sampled_3']} |")
     lines += ["", *[f"![{Path(f).stem}]({f})" for f in figures], ""]
-    path.write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))
