@@ -23,6 +23,7 @@ from training import outputs, run
 from training.datasets import coil_task
 
 from .test_learner import shape, train
+from .test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
 
 
 def exit_code(argv) -> int:
@@ -190,6 +191,25 @@ def test_a_folder_that_holds_a_run_is_refused_resumed_or_overwritten(tmp_path, c
     capsys.readouterr()
     assert run.main([*RUN, "--out", str(tmp_path / "fresh"), "--resume"]) == 0
     assert f"note: no checkpoint in {tmp_path / 'fresh'}; --resume starts afresh" in capsys.readouterr().err
+
+
+def test_damaged_fields_of_a_fold_checkpoint_are_refused_on_resume(small_task, tmp_path):
+    fold = make_fold(small_task, tmp_path)
+    fold.run(max_cycles=1)
+    good = json.loads(fold.checkpoint.read_text())
+
+    def cache_above_one(data):
+        values = decode_array(data["cache"]["values"])
+        data["cache"]["values"] = encode_array(np.where(np.isnan(values), np.nan, 3.0))
+
+    for damage in (lambda d: d["state"].__setitem__("t_ksd", 7.0), lambda d: d["state"].__setitem__("stage", -1),
+                   lambda d: d["state"].__setitem__("done", "no"), cache_above_one,
+                   lambda d: d["learner"]["networks"][0]["threshold"].__setitem__(0, math.nan)):
+        data = json.loads(json.dumps(good))
+        damage(data)
+        fold.checkpoint.write_text(json.dumps(data))
+        with pytest.raises(InputError, match="damaged"):
+            fold.run(max_cycles=1, resume=True)
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o077])

@@ -21,6 +21,7 @@ would have reached.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -90,6 +91,21 @@ def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recogni
             "sampled": learner.sampled}
 
 
+def _checked_state(state: dict) -> dict:
+    """A fold's progress as read from a checkpoint; ValueError where a field has the wrong type or range."""
+    state = dict(state)
+    counts = ("phase", "stage", "misses", "total_cycles", "sampled_before")
+    if any(isinstance(state[k], bool) or not isinstance(state[k], int) or state[k] < 0 for k in counts):
+        raise ValueError(f"progress counts {[state[k] for k in counts]} must be integers >= 0")
+    if not (isinstance(state["t_ksd"], (int, float)) and 0.0 <= state["t_ksd"] <= 1.0):
+        raise ValueError(f"t_KSD {state['t_ksd']!r} outside [0, 1]")
+    if not (isinstance(state["seconds"], (int, float)) and 0.0 <= state["seconds"] < math.inf):
+        raise ValueError(f"seconds {state['seconds']!r} is not a duration")
+    if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
+        raise ValueError("done must be true or false, and cycles, stages and added lists")
+    return state
+
+
 @dataclass
 class Fold:
     """One fold of a task: its image sets, the run configuration and where its files go."""
@@ -143,7 +159,7 @@ class Fold:
             learner.load_state_dict(data["learner"], features)
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
             self.train.load_cache_state(data["cache"], features)
-            state = dict(data["state"])
+            state = _checked_state(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
