@@ -8,6 +8,7 @@ import stat
 import subprocess
 import sys
 import time
+import zipfile
 
 import cv2
 import numpy as np
@@ -19,7 +20,7 @@ from ftorch.bayes import ClassNetwork
 from ftorch.checkpoint import decode_array, encode_array, write_atomic
 from ftorch.environment import ImageSet
 from ftorch.learner import DistinctiveFeatureLearner
-from training import outputs, run
+from training import coil, outputs, run
 from training.datasets import coil_task
 
 from .test_learner import shape, train
@@ -304,3 +305,44 @@ def test_colour_arrays_in_hwc_order_are_one_image():
     rgba = np.concatenate([rgb, np.full((20, 30, 1), 7, np.uint8)], axis=2)
     assert torch.equal(as_image_batch(rgba), expected)  # alpha dropped
     assert as_image_batch(np.zeros((5, 20, 30), np.uint8)).shape == (5, 1, 20, 30)  # a grey batch stays one
+
+
+# -- 8. getting COIL-20 ---------------------------------------------------------------------------
+def _archive(path, skip=(), extra=()):
+    rng = np.random.default_rng(0)
+    with zipfile.ZipFile(path, "w") as zipped:
+        for k in range(1, 21):
+            for v in range(72):
+                if (k, v) not in skip:
+                    pixels = rng.integers(0, 255, (128, 128), dtype=np.uint8)
+                    zipped.writestr(f"coil-20-proc/obj{k}__{v}.png", cv2.imencode(".png", pixels)[1].tobytes())
+        for name, data in extra:
+            zipped.writestr(name, data)
+    return path
+
+
+def test_the_coil_folder_is_prepared_from_the_official_archive(tmp_path, capsys):
+    archive = _archive(tmp_path / "coil-20-proc.zip", extra=[("coil-20-proc/README.txt", "x")])
+    assert coil.main([str(archive), "--out", str(tmp_path / "coil")]) == 0
+    assert "1440 COIL-20 images" in capsys.readouterr().out
+    with zipfile.ZipFile(archive) as zipped:
+        original = cv2.imdecode(np.frombuffer(zipped.read("coil-20-proc/obj7__33.png"), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(cv2.imread(str(tmp_path / "coil" / "obj7__33.png"), cv2.IMREAD_UNCHANGED), original)
+    assert len(coil_task(tmp_path / "coil", classes=20, views=72).images) == 1440
+    assert coil.main([str(archive), "--out", str(tmp_path / "small"), "--size", "32"]) == 0
+    assert cv2.imread(str(tmp_path / "small" / "obj1__0.png"), cv2.IMREAD_UNCHANGED).shape == (32, 32)
+
+
+def test_a_wrong_archive_is_refused_and_writes_nothing(tmp_path, capsys):
+    cases = {
+        "missing.zip": (_archive(tmp_path / "missing.zip", skip={(3, 5)}), "1 of the 1440 missing (e.g. obj3__5.png)"),
+        "hostile.zip": (_archive(tmp_path / "hostile.zip", skip={(1, 0)}, extra=[("../../obj1__0.png", b"x")]),
+                        "is not a 128x128 8-bit grey image"),
+        "corrupt.zip": (tmp_path / "corrupt.zip", "not a readable zip archive"),
+    }
+    (tmp_path / "corrupt.zip").write_bytes(b"PK\x03\x04 not really")
+    for name, (archive, message) in cases.items():
+        out = tmp_path / f"out-{name}"
+        assert coil.main([str(archive), "--out", str(out)]) == 2
+        assert message in one_line(capsys) and not out.exists()
+    assert not (tmp_path.parent / "obj1__0.png").exists()

@@ -1,0 +1,48 @@
+"""The README's examples run as written: every Python block, in order, and every command line parses."""
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from training import run
+
+README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+CI = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
+
+
+def blocks(language: str) -> list[str]:
+    return re.findall(rf"```{language}\n(.*?)```", README, re.S)
+
+
+def test_the_first_lines_say_what_it_is_then_give_the_two_set_up_commands():
+    first = blocks("bash")[0].strip().splitlines()
+    assert len(first) == 2 and all(line.startswith("pip install torch==2.13.0 -e ") for line in first)
+    assert first[0].endswith("&& python -m training.run")
+    test_command = first[1]
+    install, tests = test_command.split(" && ")
+    assert "python -m " + install.replace("pip install", "pip install --quiet") in CI and tests in CI  # the same command
+    assert README.index("ftorch learns") < README.index("```bash")
+
+
+def test_every_python_example_runs(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # the examples write learner.json and state.json
+    namespace = {}
+    examples = blocks("python")
+    assert len(examples) >= 4
+    for n, example in enumerate(examples):
+        exec(compile(example, f"README python block {n + 1}", "exec"), namespace)
+    assert (tmp_path / "learner.json").is_file() and (tmp_path / "state.json").is_file()
+    assert "variable class" in capsys.readouterr().out  # the BIF export printed
+
+
+def _command_lines() -> list[str]:
+    lines = [l.split("#")[0].strip() for b in blocks("bash") for l in b.splitlines()]
+    return [l for l in lines if l.startswith("python -m training.run ")]
+
+
+@pytest.mark.parametrize("line", _command_lines())
+def test_every_command_line_example_parses(line):
+    line = re.sub(r"\[[^\]]*\]", "", line)  # [optional] parts
+    argv = [re.sub(r"\bS\b", "0", a) for a in shlex.split(line)[3:]]
+    run.parser().parse_args(argv)  # argparse exits on anything it does not know
