@@ -136,8 +136,35 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
     return a or b
 
 
-def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_side: int = 256) -> np.ndarray:
-    """Figures 4.7/4.8: ``features`` located in image n and drawn with their ``ids``, RGB uint8."""
+def describe(feature: Feature) -> str:
+    """A short name of a feature's type and make-up, for legends: 'texel', 'geometric: edgel-texel',
+    'and(texel, geometric: edgel-edgel)'."""
+    if isinstance(feature, LocalFeature):
+        return "texel" if len(feature.parts) == 1 else "geometric: " + "-".join(p.kind for p in feature.parts)
+    word = "and" if type(feature).__name__ == "Conjunction" else "or"
+    return f"{word}({describe(feature.a)}, {describe(feature.b)})"
+
+
+LEGEND_KEY = ("circle: blob, square: corner", "segment: edgel (sizes: sigma)", "line: geometric parts, dots: and/or")
+
+
+def feature_legend(features, ids, width: int) -> np.ndarray:
+    """A white strip, ``width`` pixels wide: the marker key, then each feature's id and type in its colour."""
+    lines = [(key, (90, 90, 90)) for key in LEGEND_KEY] + [(f"{i}: {describe(f)}", PALETTE[k % len(PALETTE)])
+                                           for k, (f, i) in enumerate(zip(features, ids))]
+    scale = 0.36
+    strip = np.full((8 + 14 * len(lines), width, 3), 255, np.uint8)
+    for row, (text, colour) in enumerate(lines):
+        while len(text) > 8 and cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width - 8:
+            text = text[: len(text) - 4] + "..."
+        cv2.putText(strip, text, (4, 16 + 14 * row), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+    return strip
+
+
+def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_side: int = 256,
+                  legend: bool = False) -> np.ndarray:
+    """Figures 4.7/4.8: ``features`` located in image n and drawn with their ``ids``, RGB uint8;
+    ``legend``: with :func:`feature_legend` below."""
     canvas, zoom = _canvas(records, n, image, min_side)
     features = list(features)
     every: dict = {}
@@ -154,6 +181,8 @@ def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_
         if point is not None and ids is not None:
             cv2.putText(canvas, str(ids[k]), (int(point[0]) + 4, int(point[1]) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
                         colour, 1, cv2.LINE_AA)
+    if legend:
+        canvas = np.concatenate([canvas, feature_legend(features, ids or range(1, len(features) + 1), canvas.shape[1])])
     return canvas
 
 

@@ -177,7 +177,8 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
     (["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
 ])
-def test_bad_runs_get_one_clear_line(argv, message, capsys):
+def test_bad_runs_get_one_clear_line(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # outputs are checked, hence made, before anything else
     try:
         code = run.main(argv)
     except SystemExit as exit:  # argparse refuses bad option values itself

@@ -36,26 +36,30 @@ def writable_folder(path, option: str = "--out") -> Path:
 
 
 def _runs(folder: Path) -> list[Path]:
-    """What runs write in ``folder``: checkpoints, reports, fold and seed folders, TensorBoard events."""
-    return sorted({p for pattern in RUN_ENTRIES for p in folder.glob(pattern)})
+    """What runs write in ``folder``: checkpoints, reports, fold and seed folders, TensorBoard events
+    (empty folders left by a run that stopped at its first check do not count)."""
+    return sorted({p for pattern in RUN_ENTRIES for p in folder.glob(pattern)
+                   if not p.is_dir() or any(f.is_file() for f in p.rglob("*"))})
 
 
 def run_folder(out, logdir, resume: bool, overwrite: bool) -> tuple[Path, Path]:
     """``out`` and ``logdir`` checked (:func:`writable_folder`) and free for this run: refused where a
     run already is, unless resumed or overwritten (module doc)."""
-    out, logdir = writable_folder(out), Path(logdir)
     if resume and overwrite:
         raise InputError("--resume continues the run in --out and --overwrite replaces it: give one of them")
+    out, logdir = writable_folder(out), Path(logdir)
     folders = [out] if logdir == out / "tensorboard" else [out, logdir]
     found = [p for folder in folders for p in _runs(folder)]
     if resume:
         if not list(out.glob("fold*/checkpoint.json")) and not list(out.glob("seed*/fold*/checkpoint.json")):
             print(f"note: no checkpoint in {out}; --resume starts afresh", file=sys.stderr)
-        return out, writable_folder(logdir, "--logdir")
-    if found and not overwrite:
+    elif found and not overwrite:
         names = ", ".join(str(p.relative_to(p.parent.parent)) for p in found[:3])
         raise InputError(f"--out {out}: already holds a run ({names}{', ...' if len(found) > 3 else ''}); "
                          "--resume continues it, --overwrite replaces it")
-    for path in found:
-        shutil.rmtree(path) if path.is_dir() else path.unlink()
-    return out, writable_folder(logdir, "--logdir")
+    else:
+        for path in found:
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    if logdir.exists() or not logdir.resolve().is_relative_to(out.resolve()):
+        writable_folder(logdir, "--logdir")  # inside a writable out, it is made with its first events
+    return out, logdir

@@ -220,11 +220,20 @@ def _confusion_sections(report: dict, which: int, table: str) -> list[str]:
     return lines
 
 
+COLUMNS = ("Columns, as in the thesis's tables: cls. classes; acc. accuracy (def. 4.6); cor., wrg., amb., cnf., ign. "
+           "the shares of test views recognized correct, wrong, ambiguous, confused, ignorant (def. 4.5; blank: 0); "
+           "BN features in the class networks; dif. different features among them; qu'd features queried per "
+           "recognition; sp'd features sampled; cyc. training cycles; imgs. training presentations; sp'd/img. "
+           "features sampled per presentation; # feats. BN a class's network size. Confusion rows: a class's test "
+           "views by what they were recognized as.")
+
+
 def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     classes = report["classes"]
     incremental = report["config"].get("incremental")
     lines = [f"# Recognition report: {report['task']}{' (incremental, alg. 5.4)' if incremental else ''}", "",
-             f"{len(classes)} classes, seed {report['seed']}, device {report['device']}, {report['seconds']:.1f} s.", ""]
+             f"{len(classes)} classes, seed {report['seed']}, device {report['device']}, {report['seconds']:.1f} s.", "",
+             COLUMNS, ""]
     expert = any(len(f["stages"]) > 1 for f in report["folds"])
     if not incremental:
         lines += ["## Novices: after stage 0 (table 4.2 form)", "", *summary_table(report, 0), "",

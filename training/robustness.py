@@ -116,7 +116,7 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
             if name != "clean":
                 save_examples(images, names, out / f"fold{fold}" / name)
         (out / f"fold{fold}").mkdir(parents=True, exist_ok=True)
-        save_rgb(out / f"fold{fold}" / "overview.png", overview(task, sets, test))
+        save_rgb(out / f"fold{fold}" / "overview.png", overview(task, sets, test, f"{task.name}, fold {fold}, perturbation seed {seed}"))
     start = time.perf_counter()
     result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
               "storage": learner_storage(learner)}
@@ -169,8 +169,8 @@ def table(result: dict) -> list[str]:
     return head + rows
 
 
-def overview(task: Task, sets: dict, test: list[int]) -> np.ndarray:
-    """One test view per class (columns) under every set (rows), as an RGB picture."""
+def overview(task: Task, sets: dict, test: list[int], heading: str) -> np.ndarray:
+    """One test view per class (columns) under every set (rows), as an RGB picture titled ``heading``."""
     first = {}
     for k, i in enumerate(test):
         first.setdefault(task.labels[i], k)
@@ -180,7 +180,7 @@ def overview(task: Task, sets: dict, test: list[int]) -> np.ndarray:
             grey = to_uint8(images[k])
             grey = np.kron(grey, np.ones((-(-96 // grey.shape[0]),) * 2, np.uint8))  # small views enlarged
             panels.append(titled(np.repeat(grey[..., None], 3, axis=2), f"{name}: {label}"))
-    return grid(panels, len(first))
+    return titled(grid(panels, len(first)), f"{heading}: one test view per class under each set")
 
 
 def split_peers(task: Task, folds: list[int]) -> dict:

@@ -31,7 +31,7 @@ import torch
 
 from ftorch import FeatureSpace, load_image
 from ftorch.checkpoint import write_text
-from ftorch.draw import draw_features, draw_salient, grid, save_rgb, titled
+from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
@@ -66,10 +66,12 @@ def salient(args) -> int:
     for n, (name, image) in enumerate(zip(names, images)):
         stem = stems[n] if stems.count(stems[n]) == 1 else f"{n + 1}-{stems[n]}"  # a/x.png and b/x.png: two figures
         target = out / f"{stem}_salient.png"
-        save_rgb(target, draw_salient(records, n, image))
         row = {"image": str(name), "edgels": counts["edgels"][n], "blobs": counts["blobs"][n],
                "corners": counts["corners"][n], "figure": str(target)}
         row["texels"] = row["blobs"] + row["corners"]
+        save_rgb(target, titled(draw_salient(records, n, image),
+                                f"{name.name}: {row['edgels']} edgels (left: segments of 2 sigma); {row['blobs']} blobs "
+                                f"(circles) and {row['corners']} corners (squares) of radius sigma"))
         summary.append(row)
         print(f"{name}: {row['edgels']} edgels, {row['texels']} texels "
               f"({row['blobs']} blobs, {row['corners']} corners) -> {target}")
@@ -82,10 +84,11 @@ def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bo
                     names=[task.names[i] for i in indices], progress=progress)
 
 
-def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet) -> list[tuple[str, np.ndarray]]:
+def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading: str = "learned features"
+                     ) -> list[tuple[str, np.ndarray]]:
     """Figure 4.7 / 5.2 ("features": each class's features present in its middle training view)
     and figure 4.8 ("<class>_features": the first class's features in every training view of it
-    where they are present), as (name, RGB uint8 picture)."""
+    where they are present), as (name, RGB uint8 picture), titled with ``heading`` (task, seed, fold)."""
     pictures, panels = [], []
 
     def present(label, image: int) -> tuple[list, list[int]]:
@@ -100,15 +103,19 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet) -> list[
         if views:
             middle = views[len(views) // 2]
             features, ids = present(label, middle)
-            panels.append(titled(draw_features(env.all_records, middle, env.images[middle], features, ids),
-                                 f"{label}: {len(features)} of {len(learner.networks[label].features)}"))
+            panels.append(titled(draw_features(env.all_records, middle, env.images[middle], features, ids, legend=True),
+                                 f"{label}: {len(features)} of {len(learner.networks[label].features)} present"))
     if panels:
-        pictures.append(("features", grid(panels, min(4, len(panels)))))
+        pictures.append(("features", titled(grid(panels, min(4, len(panels))),
+                                            f"{heading}: each class's features present in its middle training view")))
     if classes:
         first = classes[0]
         views = [i for i, labels in enumerate(env.labels) if first in labels]
         drawn = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in views]
-        pictures.append((f"{first}_features", grid(drawn, min(5, len(drawn)))))
+        every = grid(drawn, min(5, len(drawn)))
+        net = learner.networks[first]
+        key = feature_legend(net.features, range(1, len(net.features) + 1), every.shape[1])
+        pictures.append((f"{first}_features", titled(np.concatenate([every, key]), f"{heading}: {first}'s features in its training views")))
     return pictures
 
 
@@ -148,7 +155,7 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
         fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
-        pictures = feature_pictures(learner, fold.train)
+        pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}")
         log_run(writer, config, entry, pictures)
     return entry, fold, learner, pictures
 

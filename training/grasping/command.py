@@ -70,8 +70,9 @@ def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures
         writer.add_image(f"figures/{name}", picture, step, dataformats="HWC")
 
 
-def recommended_features(fold: GraspFold, per_kind: int = 3) -> np.ndarray:
-    """Figures 6.15 / 6.16: the feature f*_c behind the recommendation, drawn on held-out images."""
+def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np.ndarray:
+    """Figures 6.15 / 6.16: the feature f*_c behind the recommendation, drawn on held-out images,
+    titled with ``heading`` (experiment, seed, fold)."""
     panels, shown = [], {}
     for trial in fold.objects:
         if shown.get(trial.kind, 0) >= per_kind:
@@ -80,9 +81,11 @@ def recommended_features(fold: GraspFold, per_kind: int = 3) -> np.ndarray:
         if cue is None:
             continue
         shown[trial.kind] = shown.get(trial.kind, 0) + 1
-        picture = draw_features(fold.records[trial.key], 0, trial.image, [cue.feature], min_side=256)
+        picture = draw_features(fold.records[trial.key], 0, trial.image, [cue.feature], [1], min_side=256, legend=True)
         panels.append(titled(picture, f"{trial.kind} {cue.fingers}f KSD {cue.ksd:.2f} E[mu0] {cue.expected_mu0:.2f}"))
-    return grid(panels, per_kind) if panels else np.full((8, 8, 3), 255, np.uint8)
+    if not panels:
+        return titled(np.full((64, 512, 3), 255, np.uint8), f"{heading}: no recommendation on the test images")
+    return titled(grid(panels, per_kind), f"{heading}: the feature behind each recommendation (figures 6.15, 6.16)")
 
 
 def grasp_command(args) -> int:
@@ -109,9 +112,10 @@ def grasp_command(args) -> int:
             evaluation = fold.evaluate()
             evaluations[mode].append(evaluation)
             name = f"fold{k}" + ("-online" if mode == "online" else "")
-            pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{name}: orientation errors"),
-                        "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{name}: probes and mu_0"),
-                        "features": recommended_features(fold)}
+            which = f"{args.experiment}, seed {args.seed}, {name}"
+            pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
+                        "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
+                        "features": recommended_features(fold, which)}
             with SummaryWriter(str(logdir / name)) as writer:
                 log_fold(writer, {**settings, "mode": mode}, fold, evaluation, pictures)
             save_rgb(out / f"{name}_features.png", pictures["features"])
@@ -124,9 +128,10 @@ def grasp_command(args) -> int:
                   f"{last['features_2']} + {last['features_3']} features")
     offline = evaluations["offline"]
     save_rgb(out / "errors.png", error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
-                                              f"{args.experiment}: orientation errors (figure 6.13)"))
+                                              f"{args.experiment}, seed {args.seed}: orientation errors (figure 6.13)"))
     save_rgb(out / "grasps.png", grasp_figure(grasp_columns(offline, args.experiment),
-                                              f"{args.experiment}: probes and mu_0, haptic only vs cued (figures 6.14, 6.17)"))
+                                              f"{args.experiment}, seed {args.seed}: probes and mu_0, haptic only vs cued "
+                                              "(figures 6.14, 6.17)"))
     figures = ["errors.png", "grasps.png", *figures]
     report = {"config": settings, "device": str(device), "seconds": time.perf_counter() - start, **results(offline)}
     if args.online:

@@ -1,13 +1,12 @@
-"""Histograms in the form of figures 6.13, 6.14 and 6.17, drawn with OpenCV (PNG)."""
+"""Histograms in the form of figures 6.13, 6.14 and 6.17, drawn with matplotlib (RGB arrays for
+PNG files and TensorBoard): labelled axes, the count of grasps in each legend, titled by the caller
+with the experiment, the seed and the fold."""
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
-from ftorch.draw import PALETTE, grid, titled
-from training.curves import put_text
+from training.curves import figure_rgb, plt
 
-WIDTH, HEIGHT, MARGIN = 300, 170, 34
 ERROR_BINS = np.arange(0, 65, 5.0)    # degrees; the last bin holds everything above 60 (figure 6.13)
 PROBE_BINS = np.arange(1, 21, 1.0)    # the last bin holds 20 probes or more (figure 6.14)
 MU0_BINS = np.arange(0, 1.05, 0.05)   # the last bin holds mu_0 >= 1
@@ -21,35 +20,35 @@ def counts(values, bins: np.ndarray) -> np.ndarray:
     return np.bincount(np.clip(index, 0, len(bins) - 1), minlength=len(bins))
 
 
-def histogram_panel(values, bins: np.ndarray, label: str, colour=PALETTE[2]) -> np.ndarray:
-    """Bars of :func:`counts` with the first, middle and overflow bins labelled."""
-    tally = counts(values, bins)
-    canvas = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
-    left, right, upper, lower = MARGIN, WIDTH - 8, 8, HEIGHT - 26
-    top = max(int(tally.max()), 1)
-    width = (right - left) / len(bins)
-    cv2.rectangle(canvas, (left, upper), (right, lower), (150, 150, 150), 1)
-    for i, n in enumerate(tally):
-        x0, x1 = int(left + i * width + 1), int(left + (i + 1) * width - 1)
-        cv2.rectangle(canvas, (x0, int(lower - n / top * (lower - upper))), (x1, lower), colour, -1)
-    for k in (0, top):
-        put_text(canvas, str(k), (4, int(lower - k / top * (lower - upper)) + 4))
-    for i in (0, len(bins) // 2, len(bins) - 1):
-        tick = f"{bins[i]:g}" + ("+" if i == len(bins) - 1 else "")
-        put_text(canvas, tick, (int(left + i * width), lower + 13))
-    put_text(canvas, f"{label} (n={len(values)})", (left + 4, lower + 24), 0.36)
-    return canvas
+def _histogram(ax, values, bins: np.ndarray, xlabel: str, label: str, colour: str) -> None:
+    """Bars of :func:`counts` over ``bins``; the overflow bin's tick ends with '+'."""
+    width = float(bins[1] - bins[0])
+    ax.bar(bins + width / 2, counts(values, bins), width=width * 0.9, color=colour, label=f"{label} (n={len(values)})")
+    ticks = [0, len(bins) // 2, len(bins) - 1]
+    ax.set_xticks([bins[i] + width / 2 for i in ticks], [f"{bins[i]:g}" + ("+" if i == len(bins) - 1 else "") for i in ticks])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("grasps")
+    ax.legend(fontsize=7)
 
 
 def error_figure(errors: list, title: str) -> np.ndarray:
     """Figure 6.13: prediction error magnitudes (degrees; no prediction counts in the last bin)."""
-    return titled(histogram_panel(errors, ERROR_BINS, "orientation error, degrees"), title)
+    figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
+    _histogram(ax, errors, ERROR_BINS, "orientation error, degrees (last bin: > 60 or no prediction)",
+               "test grasps", "C0")
+    ax.set_title(title, fontsize=9)
+    figure.tight_layout()
+    return figure_rgb(figure)
 
 
 def grasp_figure(columns: dict[str, list[dict]], title: str) -> np.ndarray:
     """Figures 6.14 and 6.17: per column of grasps, the probes (top) and mu_0 (bottom) histograms."""
-    panels = [titled(histogram_panel([g["probes"] for g in grasps], PROBE_BINS, "probes", PALETTE[n]), name)
-              for n, (name, grasps) in enumerate(columns.items())]
-    panels += [histogram_panel([g["mu0"] for g in grasps], MU0_BINS, "mu_0", PALETTE[n])
-               for n, grasps in enumerate(columns.values())]
-    return titled(grid(panels, len(columns)), title)
+    figure, axes = plt.subplots(2, len(columns), figsize=(3.4 * len(columns), 5.2), squeeze=False, dpi=100)
+    for n, (name, grasps) in enumerate(columns.items()):
+        colour = f"C{n}"
+        _histogram(axes[0, n], [g["probes"] for g in grasps], PROBE_BINS, "probes until the grasp settles", name, colour)
+        _histogram(axes[1, n], [g["mu0"] for g in grasps], MU0_BINS, "mu_0 (lower is better; last bin: >= 1)", name, colour)
+        axes[0, n].set_title(name, fontsize=9)
+    figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    return figure_rgb(figure)
