@@ -2,6 +2,7 @@
 discarding, learning on simulated grasps, reproducibility, bad input; and the ``grasp`` command."""
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -179,3 +180,23 @@ def test_grasp_command_writes_report_figures_and_events(tmp_path, capsys):
             "test/mu0_cued"} <= set(events.Tags()["histograms"])
     assert run.main(argv[:-2] + ["--best", "5", "--out", str(out)]) == 2
     assert "--best 5" in capsys.readouterr().err
+
+
+def test_grasp_seeds_in_processes_equal_the_sequential_study(tmp_path):
+    common = ["grasp", "--experiment", "mixed", "--pool", "8", "--best", "3", "--epochs", "2", "--folds", "1",
+              "--online", "--device", "cpu", "--quiet", "--seed", "4", "--seeds", "2"]
+    assert run.main([*common, "--out", str(tmp_path / "a")]) == 0
+    assert run.main([*common, "--workers", "2", "--out", str(tmp_path / "b")]) == 0
+    timeless = lambda path: re.sub(r'"seconds": [0-9.e+-]+', "_", path.read_text())  # noqa: E731
+    for name in ("report.json", "seed5/report.json"):
+        assert timeless(tmp_path / "a" / name) == timeless(tmp_path / "b" / name)
+    report = json.loads((tmp_path / "a" / "report.json").read_text())
+    alone = json.loads((tmp_path / "a" / "seed5" / "report.json").read_text())
+    runs = report["seeds"]["runs"]
+    assert [r["seed"] for r in runs] == [4, 5] and runs[1]["poor_grasp_fraction"] == {
+        k: alone["poor_grasp_fraction"][k] for k in ("haptic", "cued", "reduction")}
+    reductions = [r["poor_grasp_fraction"]["reduction"] for r in runs]
+    offline = report["seeds"]["reduction"]["offline"]
+    assert offline["mean"] == pytest.approx(np.mean(reductions)) and offline["worst"] == min(reductions)
+    assert offline["sd"] == pytest.approx(np.std(reductions, ddof=1)) and "online" in report["seeds"]["reduction"]
+    assert (tmp_path / "a" / "reductions.png").is_file() and "## Seeds 4-5" in (tmp_path / "a" / "report.md").read_text()

@@ -1,6 +1,7 @@
 """``python -m training.run grasp``: the chapter 6 experiments with reports, figures and TensorBoard logs."""
 from __future__ import annotations
 
+import argparse
 import math
 import time
 from pathlib import Path
@@ -12,15 +13,16 @@ from ftorch import FeatureSpace
 from ftorch.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
 from ftorch.grasp import MU0_CAP, GraspLearner
-from training.arguments import number, seed
+from training.arguments import MAX_SEED, at_least, number, seed
 from training.devices import resolve_device
 from training.outputs import run_folder
+from training.parallel import TasksFailed, run_tasks
 from training.report import write_json
 
 from .experiment import EXPERIMENTS, GraspFold, simulate_pool
 from .haptics import HapticController
-from .figures import error_figure, grasp_figure
-from .report import UNPREDICTED_DEG, grasp_columns, results, write_markdown
+from .figures import error_figure, grasp_figure, reduction_figure
+from .report import UNPREDICTED_DEG, grasp_columns, results, seed_study, write_markdown
 
 
 def _check(args) -> None:
@@ -88,31 +90,34 @@ def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np
     return titled(grid(panels, per_kind), f"{heading}: the feature behind each recommendation (figures 6.15, 6.16)")
 
 
-def grasp_command(args) -> int:
-    _check(args)
-    device = resolve_device(args.device)
+def seed_task(job: dict) -> dict:
+    """One seed of the experiment: every fold, off-line (and on-line), into ``job['out']`` (report,
+    figures) and TensorBoard ``job['logdir']``/foldK; returns its report. Picklable, for local
+    processes and Ray (training/parallel.py)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    args, seed = argparse.Namespace(**job["args"]), job["seed"]
+    out, logdir = Path(job["out"]), Path(job["logdir"])
+    out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    torch.manual_seed(args.seed)
-    settings = config(args, device)
-    out = Path(args.out or f"runs/grasp-{args.experiment}")
-    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite)
+    device = resolve_device(args.device)
+    torch.manual_seed(seed)
+    settings = {**config(args, device), "seed": seed}
     controller = HapticController()
     space = FeatureSpace().to(device)
-    pool = simulate_pool(args.experiment, args.pool, args.seed, args.size, controller, not args.quiet)
+    pool = simulate_pool(args.experiment, args.pool, seed, args.size, controller, not args.quiet)
     modes = ("offline", "online") if args.online else ("offline",)
     evaluations = {mode: [] for mode in modes}
     folds, figures = [], []
-    from torch.utils.tensorboard import SummaryWriter
-
     for k in range(1, args.folds + 1):
         for mode in modes:
-            learner = GraspLearner(math.radians(args.t_dtheta), seed=args.seed * 100 + k)
-            fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, args.seed, not args.quiet)
+            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k)
+            fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
             fold.fit(args.epochs, online=mode == "online")
             evaluation = fold.evaluate()
             evaluations[mode].append(evaluation)
             name = f"fold{k}" + ("-online" if mode == "online" else "")
-            which = f"{args.experiment}, seed {args.seed}, {name}"
+            which = f"{args.experiment}, seed {seed}, {name}"
             pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
                         "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
                         "features": recommended_features(fold, which)}
@@ -124,30 +129,67 @@ def grasp_command(args) -> int:
                           "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None)
                                                 for f, m in zip(s.features, s.models)] for c, s in learner.sets.items()}})
             last = fold.epochs[-1]
-            print(f"fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} mistakes; "
-                  f"{last['features_2']} + {last['features_3']} features")
+            if not args.quiet:
+                print(f"seed {seed} fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} "
+                      f"mistakes; {last['features_2']} + {last['features_3']} features")
     offline = evaluations["offline"]
     save_rgb(out / "errors.png", error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
-                                              f"{args.experiment}, seed {args.seed}: orientation errors (figure 6.13)"))
+                                              f"{args.experiment}, seed {seed}: orientation errors (figure 6.13)"))
     save_rgb(out / "grasps.png", grasp_figure(grasp_columns(offline, args.experiment),
-                                              f"{args.experiment}, seed {args.seed}: probes and mu_0, haptic only vs cued "
+                                              f"{args.experiment}, seed {seed}: probes and mu_0, haptic only vs cued "
                                               "(figures 6.14, 6.17)"))
     figures = ["errors.png", "grasps.png", *figures]
     report = {"config": settings, "device": str(device), "seconds": time.perf_counter() - start, **results(offline)}
     if args.online:
         report["online"] = {mode: results(evaluations[mode]) for mode in modes}
     report["folds"] = folds
+    report["figures"] = figures
     write_json(out / "report.json", report)
     write_markdown(out / "report.md", report, figures)
+    return report
+
+
+def grasp_command(args) -> int:
+    _check(args)
+    resolve_device(args.device)
+    if args.seed + args.seeds - 1 > MAX_SEED:
+        raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
+    start = time.perf_counter()
+    out = Path(args.out or f"runs/grasp-{args.experiment}")
+    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite)
+    parallel = args.workers > 1 or args.ray is not None
+    settings = {k: v for k, v in vars(args).items() if k != "run"}
+    settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
+    seeds = range(args.seed, args.seed + args.seeds)
+    jobs = [{"args": settings, "seed": s, "out": str(out if s == args.seed else out / f"seed{s}"),
+             "logdir": str(logdir if s == args.seed else logdir / f"seed{s}")} for s in seeds]
+    try:
+        reports = run_tasks(seed_task, jobs, [f"seed {s}" for s in seeds], args.workers, args.ray, progress=not args.quiet)
+    except TasksFailed as failed:
+        raise InputError(f"{len(failed.failures)} of {len(jobs)} seeds failed twice ({failed}); "
+                         f"the other seeds' folders in {out} are complete") from None
+    report = reports[0]
+    if args.seeds > 1:
+        report["seeds"] = seed_study(reports)
+        report["seconds"] = time.perf_counter() - start
+        save_rgb(out / "reductions.png", reduction_figure(report["seeds"], f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}"))
+        report["figures"] = [*report["figures"], "reductions.png"]
+        write_json(out / "report.json", report)
+        write_markdown(out / "report.md", report, report["figures"])
     e, p = report["orientation_error_deg"], report["poor_grasp_fraction"]
-    print(f"{args.experiment}: orientation error median {e['median']:.1f} deg (p90 {e['p90']:.1f}); poor grasps "
-          f"haptic {p['haptic']:.2f} -> cued {p['cued']:.2f}; probes {report['probes']['haptic']['mean']:.1f} -> "
-          f"{report['probes']['cued']['mean']:.1f}; {report['seconds']:.1f} s")
+    print(f"{args.experiment}, seed {args.seed}: orientation error median {e['median']:.1f} deg (p90 {e['p90']:.1f}); "
+          f"poor grasps haptic {p['haptic']:.2f} -> cued {p['cued']:.2f}; probes {report['probes']['haptic']['mean']:.1f} "
+          f"-> {report['probes']['cued']['mean']:.1f}")
     if args.online:
         on = report["online"]["online"]
         print(f"on-line: orientation error median {on['orientation_error_deg']['median']:.1f} deg; poor grasps cued "
               f"{on['poor_grasp_fraction']['cued']:.2f}")
-    print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
+    if args.seeds > 1:
+        for mode, study in report["seeds"]["reduction"].items():
+            print(f"{args.seeds} seeds, {mode}: poor-grasp reduction mean {study['mean']:.0%} +- {study['sd']:.0%}, "
+                  f"worst {study['worst']:.0%} (seed {study['worst_seed']})")
+    print(f"{time.perf_counter() - start:.1f} s; report: {out / 'report.md'} and {out / 'report.json'}; "
+          f"TensorBoard: tensorboard --logdir {logdir}")
     return 0
 
 
@@ -168,6 +210,11 @@ def add_parser(commands) -> None:
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--out", help="run folder (default runs/grasp-EXPERIMENT)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
+    p.add_argument("--seeds", type=at_least(1, "a number of seeds"), default=1, help="repeat the experiment with seeds "
+                   "SEED, SEED+1, ... (into OUT/seedN): per-seed results and the spread of the reductions (default 1)")
+    p.add_argument("--workers", type=at_least(1, "a number of processes"), default=1,
+                   help="run the seeds as N local processes at once (default 1: one after another)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run the seeds as tasks on a Ray cluster (see recognize --help)")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (refused without it)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=grasp_command)

@@ -52,3 +52,19 @@ def grasp_figure(columns: dict[str, list[dict]], title: str) -> np.ndarray:
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()
     return figure_rgb(figure)
+
+
+def reduction_figure(study: dict, title: str) -> np.ndarray:
+    """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent."""
+    figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
+    bins = np.arange(-20, 105, 5.0)
+    for n, mode in enumerate(study["reduction"]):
+        key = (lambda e: e["poor_grasp_fraction"]) if mode == "offline" else (lambda e: e["online"]["poor_grasp_fraction"])
+        values = [100 * (key(e)["reduction"] or 0.0) for e in study["runs"]]
+        ax.hist(np.clip(values, bins[0], bins[-1]), bins=bins, alpha=0.7, color=f"C{n}", label=f"{mode} (n={len(values)} seeds)")
+    ax.set_xlabel("reduction of poor grasps by the cue, % (mu_0 > 0.4)")
+    ax.set_ylabel("seeds")
+    ax.legend(fontsize=7)
+    ax.set_title(title, fontsize=9)
+    figure.tight_layout()
+    return figure_rgb(figure)

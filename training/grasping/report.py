@@ -51,6 +51,33 @@ def results(evaluations: list[dict]) -> dict:
     }
 
 
+def _spread(values: list[float], seeds: list[int]) -> dict:
+    worst = int(np.argmin(values))
+    return {"mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
+            "worst": float(values[worst]), "worst_seed": seeds[worst]}
+
+
+def seed_study(reports: list[dict]) -> dict:
+    """The ``seeds`` block: one entry per seed's report, and the poor-grasp reductions' mean, sd and
+    worst seed, off-line (and on-line where run)."""
+    runs = []
+    for r in reports:
+        entry = {"seed": r["config"]["seed"], "poor_grasp_fraction": {k: r["poor_grasp_fraction"][k] for k in
+                                                                       ("haptic", "cued", "reduction")},
+                 "orientation_error_deg": r["orientation_error_deg"], "cued_fingers": r["cued_fingers"],
+                 "seconds": r["seconds"]}
+        if "online" in r:
+            online = r["online"]["online"]
+            entry["online"] = {"poor_grasp_fraction": {k: online["poor_grasp_fraction"][k] for k in ("haptic", "cued", "reduction")},
+                               "orientation_error_deg": online["orientation_error_deg"]}
+        runs.append(entry)
+    seeds = [e["seed"] for e in runs]
+    reduction = {"offline": _spread([e["poor_grasp_fraction"]["reduction"] or 0.0 for e in runs], seeds)}
+    if all("online" in e for e in runs):
+        reduction["online"] = _spread([e["online"]["poor_grasp_fraction"]["reduction"] or 0.0 for e in runs], seeds)
+    return {"runs": runs, "reduction": reduction}
+
+
 def grasp_columns(evaluations: list[dict], experiment: str) -> dict[str, list[dict]]:
     """Figure 6.17 (mixed): haptic-only two- and three-finger grasps, and cued ones; figure 6.14 (the
     others): haptic-only and cued grasps per object kind."""
@@ -107,5 +134,30 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
         last = fold["epochs"][-1]
         lines.append(f"| {fold['fold']} | {fold['mode']} | {len(fold['epochs'])} | {last['mistakes']:.2f} | "
                      f"{last['features_2']} / {last['features_3']} | {last['sampled_2']} / {last['sampled_3']} |")
+    if "seeds" in report:
+        lines += ["", *_seed_table(report["seeds"])]
     lines += ["", *[f"![{Path(f).stem}]({f})" for f in figures], ""]
     write_text(path, "\n".join(lines))
+
+
+def _seed_table(study: dict) -> list[str]:
+    """Per seed: poor-grasp fractions and reduction, orientation error; then the reductions' spread."""
+    online = "online" in study["reduction"]
+    head = "| seed | poor haptic | poor cued | reduction | error median / p90 (deg) | squares cued with 3 fingers |"
+    head += " on-line poor cued | on-line reduction |" if online else ""
+    lines = [f"## Seeds {study['runs'][0]['seed']}-{study['runs'][-1]['seed']}", "", head,
+             "|---" * (8 if online else 6) + "|"]
+    for e in study["runs"]:
+        p, err = e["poor_grasp_fraction"], e["orientation_error_deg"]
+        squares = e["cued_fingers"].get("square", {})
+        row = (f"| {e['seed']} | {p['haptic']:.2f} | {p['cued']:.2f} | {p['reduction'] or 0:.0%} | "
+               f"{err['median']:.1f} / {err['p90']:.1f} | {squares.get('3', 0)} of {sum(squares.values())} |")
+        if online:
+            q = e["online"]["poor_grasp_fraction"]
+            row += f" {q['cued']:.2f} | {q['reduction'] or 0:.0%} |"
+        lines.append(row)
+    lines.append("")
+    for mode, r in study["reduction"].items():
+        lines.append(f"Poor-grasp reduction, {mode}: mean {r['mean']:.0%}, sd {r['sd']:.0%}, worst {r['worst']:.0%} "
+                     f"(seed {r['worst_seed']}).")
+    return lines
