@@ -14,7 +14,7 @@ from ftorch.errors import InputError
 from ftorch.evaluate import feature_values
 from ftorch.features import Texel
 from ftorch.generate import random_edgel_pair
-from ftorch.grasp import Experience, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
 from ftorch.vonmises import fit_mixture
 from training import run
 from training.grasping.experiment import GraspFold, simulate_pool
@@ -200,3 +200,29 @@ def test_grasp_seeds_in_processes_equal_the_sequential_study(tmp_path):
     assert offline["mean"] == pytest.approx(np.mean(reductions)) and offline["worst"] == min(reductions)
     assert offline["sd"] == pytest.approx(np.std(reductions, ddof=1)) and "online" in report["seeds"]["reduction"]
     assert (tmp_path / "a" / "reductions.png").is_file() and "## Seeds 4-5" in (tmp_path / "a" / "report.md").read_text()
+
+
+def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_object_kind():
+    """Seed 1's failure (ftorch/grasp.py): on a square, f*_2 (the present feature of largest KSD) had
+    been present on few training images, mostly triangles grasped with two fingers (poor), so its
+    E[mu_0] sent the square to three fingers. Pooling the present features by support must not."""
+    mix = fit_mixture(np.array([0.1, 0.12, 0.11]))
+    model = lambda ksd, support, expected: FeatureModel(ksd, 0.5, mix, 0.0, expected, support)  # noqa: E731
+    learner = {choice: GraspLearner(finger_choice=choice) for choice in FINGER_CHOICES}
+    for chooser in learner.values():
+        two, three = chooser.sets[2], chooser.sets[3]
+        two.features = [Texel([1.0] + [0.0] * 14), Texel([0.0, 1.0] + [0.0] * 13)]
+        two.models = [model(0.9, 3, 0.50), model(0.6, 20, 0.02)]  # f*_2: strong, but seen on 3 triangles
+        three.features = [Texel([0.0, 0.0, 1.0] + [0.0] * 12)]
+        three.models = [model(0.7, 20, 0.45)]  # squares grasped with three fingers
+        for s in (two, three):
+            s.measure = lambda records, s=s: (np.full(len(s.features), 0.9), np.zeros(len(s.features)))
+    records = [None]  # one image's records; measure is replaced, so no image is needed
+    thesis, pooled = learner["thesis"].recommend(records), learner["pooled"].recommend(records)
+    assert thesis.fingers == 3 and thesis.expected_mu0 == 0.45  # the failure, kept available as the thesis's rule
+    assert pooled.fingers == 2 and pooled.expected_mu0 == pytest.approx((3 * 0.50 + 20 * 0.02) / 23)
+    two_fingers = learner["thesis"].recommend(records, 2)
+    assert (pooled.feature, pooled.theta_h) == (two_fingers.feature, two_fingers.theta_h)  # orientation: f*_2, as before
+    assert pooled.feature == learner["pooled"].sets[2].features[0]  # the largest KSD
+    with pytest.raises(InputError, match="finger_choice"):
+        GraspLearner(finger_choice="vote")

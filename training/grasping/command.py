@@ -12,7 +12,7 @@ import torch
 from ftorch import FeatureSpace
 from ftorch.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
-from ftorch.grasp import MU0_CAP, GraspLearner
+from ftorch.grasp import FINGER_CHOICES, MU0_CAP, GraspLearner
 from training.arguments import MAX_SEED, at_least, number, seed
 from training.devices import resolve_device
 from training.outputs import run_folder
@@ -43,6 +43,7 @@ def _check(args) -> None:
 def config(args, device) -> dict:
     return {"experiment": args.experiment, "seed": args.seed, "pool": args.pool, "best": args.best, "epochs": args.epochs,
             "size": args.size, "t_dtheta_deg": args.t_dtheta, "folds": args.folds, "online": args.online,
+            "finger_choice": args.finger_choice,
             "device": str(device)}
 
 
@@ -111,7 +112,7 @@ def seed_task(job: dict) -> dict:
     folds, figures = [], []
     for k in range(1, args.folds + 1):
         for mode in modes:
-            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k)
+            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k, finger_choice=args.finger_choice)
             fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
             fold.fit(args.epochs, online=mode == "online")
             evaluation = fold.evaluate()
@@ -203,6 +204,9 @@ def add_parser(commands) -> None:
     p.add_argument("--best", type=int, default=20, help="training grasps per category and fold (default 20)")
     p.add_argument("--epochs", type=int, default=10, help="passes over the training grasps (default 10)")
     p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
+    p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="pooled",
+                   help="alg. 6.2 step 2b: pooled (default): E[mu_0] over every present feature, weighted by its "
+                        "support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp.py)")
     p.add_argument("--size", type=int, default=64, help="camera image side in pixels (default 64)")
     p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
