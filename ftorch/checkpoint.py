@@ -83,7 +83,7 @@ def decode_array(data: dict) -> np.ndarray:
             raise ValueError(f"declares {n_rows * row_bytes} bytes, more than the {MAX_BYTES} a checkpoint may hold")
         raw = b"".join(_inflate(b, min(ROWS, n_rows - k * ROWS) * row_bytes) for k, b in enumerate(blocks))
         flat = np.frombuffer(raw, dtype=dtype)
-    except (KeyError, TypeError, ValueError, zlib.error) as err:
+    except (KeyError, TypeError, ValueError, OverflowError, zlib.error) as err:
         raise ValueError(f"damaged array ({err})") from None
     return flat.reshape(shape).astype(np.float64)
 

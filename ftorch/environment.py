@@ -117,9 +117,11 @@ class ImageSet:
         the table it was written against, where the caller kept one)."""
         try:
             known = unpack_features(state["table"]) if features is None else features
+            if any(isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(known) for i in state["features"]):
+                raise ValueError("a feature reference outside the table")
             features = [known[i] for i in state["features"]]
             table = decode_array(state["values"])
-        except (KeyError, TypeError, ValueError, IndexError) as err:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
             raise InputError(f"value cache is damaged: {err}") from None
         if table.shape != (len(features), len(self)):
             raise InputError(f"value cache holds {table.shape}, expected ({len(features)}, {len(self)}) for this image set")

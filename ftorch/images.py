@@ -7,8 +7,8 @@ Rules:
   to I -> a*I + b). Other dtypes are refused.
 - Colour (C = 3, RGB order) becomes grey by ITU-R BT.601 luma, 0.299 R + 0.587 G + 0.114 B.
   Files are read with OpenCV (BGR order, handled) and converted by the same rule.
-- A 3-D array or tensor whose last axis has 3 or 4 entries is one colour image (H, W, C) in RGB
-  or RGBA order, as PIL and matplotlib give it (alpha is dropped): read as a batch it would be
+- A 3-D array or tensor whose last axis has 1, 3 or 4 entries is one image (H, W, C): grey, RGB
+  or RGBA, as PIL and matplotlib give it (alpha is dropped): read as a batch it would be
   images 3 or 4 pixels wide, far below the smallest the scale space takes. Arrays from
   ``cv2.imread`` are BGR: pass the file itself, or convert with ``cv2.cvtColor(a, cv2.COLOR_BGR2RGB)``.
 """
@@ -44,8 +44,8 @@ def as_image_batch(images, name: str = "images") -> Tensor:
         raise InputError(f"{name}: empty image, shape {shape}")
     if images.ndim == 2:
         images = images[None, None]
-    elif images.ndim == 3 and images.shape[-1] in (3, 4):
-        images = images[..., :3].permute(2, 0, 1)[None]  # one (H, W, C) colour image, see the rules
+    elif images.ndim == 3 and images.shape[-1] in (1, 3, 4):
+        images = images[..., :3].permute(2, 0, 1)[None]  # one (H, W, C) image, see the rules
     elif images.ndim == 3:
         images = images[:, None]
     elif images.ndim != 4:

@@ -95,6 +95,13 @@ def _position(index, size: int) -> int:
     return index
 
 
+def _number(value) -> float:
+    """A stored number: int or float, never a string or a bool that float() would also accept."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{value!r} is not a number")
+    return float(value)
+
+
 def _count(value) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"count {value!r} is not an integer >= 0")
@@ -468,9 +475,13 @@ class DistinctiveFeatureLearner:
         learner that recognizes but refuses to learn."""
         features = unpack_features(state["features"]) if features is None else features
         at = lambda i: features[_position(i, len(features))]  # noqa: E731
-        self.n_ex, self.n_fgen = int(state["n_ex"]), int(state["n_fgen"])
-        self.min_information = float(state["min_information"])
+        self.n_ex, self.n_fgen = _count(state["n_ex"]), _count(state["n_fgen"])
+        self.min_information = _number(state["min_information"])
         options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
+        for k in ("search_rounds", "redundancy"):
+            options[k] = _count(options[k])
+        for k in ("pseudocount", "cut_position"):
+            options[k] = _number(options[k])
         probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **options)  # validates them
         for k in OPTIONS:
             setattr(self, k, getattr(probe, k))
@@ -485,14 +496,16 @@ class DistinctiveFeatureLearner:
                                  f"and {len(record['cpt'])} CPTs")
             net.features = keys
             net.parents = {k: [at(p) for p in ps] for k, ps in zip(keys, record["parents"])}
-            net.threshold = {k: float(t) for k, t in zip(keys, record["threshold"])}
-            net.prior = np.array(record["prior"], dtype=float)
+            net.threshold = {k: _number(t) for k, t in zip(keys, record["threshold"])}
+            net.prior = np.array([_number(p) for p in record["prior"]], dtype=float)
             for k, table in zip(keys, record["cpt"]):
                 net.cpt[k] = decode_array(table)
             net.validate()
             if net.label in self.networks:
                 raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net
+        if not self.networks:
+            raise ValueError("no class network")
         self.trainable = "instances" in state
         self.discriminates, self.usage, self.instances = {}, {}, InstanceList()
         self.generator = torch.Generator()
@@ -525,6 +538,6 @@ class DistinctiveFeatureLearner:
         learner = cls()
         try:
             learner.load_state_dict(data["learner"])
-        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
             raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
         return learner

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 from tqdm import tqdm
@@ -210,6 +211,8 @@ class FeatureSpace(nn.Module):
                 names: Sequence[str] | None = None) -> ImageRecords:
         """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
         name the images in errors (default: the file path, or images[i])."""
+        if isinstance(images, (np.ndarray, torch.Tensor)):  # one array: its images, by the rules of as_image_batch
+            images = list(as_image_batch(images))
         if len(images) == 0:
             raise InputError("images: the sequence is empty")
         device = next(iter(self.scale_space.buffers())).device

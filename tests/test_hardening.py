@@ -94,6 +94,11 @@ DAMAGE = {
     "instance value above 1": lambda s: s["instances"].__setitem__("values", encode_array(
         np.where(np.isnan(decode_array(s["instances"]["values"])), np.nan, 2.0))),
     "usage by a negative index": lambda s: s["usage"].append([-2, 1]),
+    "threshold as a string": lambda s: s["networks"][0]["threshold"].__setitem__(0, "0.5"),
+    "a huge integer in the prior": lambda s: s["networks"][0]["prior"].__setitem__(0, 10**400),
+    "a CPT of impossible shape": lambda s: s["networks"][0]["cpt"][0].__setitem__("shape", [1e999, 2]),
+    "n_ex not an integer": lambda s: s.__setitem__("n_ex", 5.7),
+    "no class network": lambda s: s.__setitem__("networks", []),
 }
 
 
@@ -189,6 +194,15 @@ def test_a_folder_that_holds_a_run_is_refused_resumed_or_overwritten(tmp_path, c
     assert run.main([*RUN, "--out", str(out), "--overwrite"]) == 0
     assert (out / "notes.txt").read_text() == "mine"  # only what runs write is replaced
     assert len(list((out / "tensorboard" / "fold1").iterdir())) == events  # one run's events, not two runs'
+    logs = tmp_path / "logs"  # a log folder of the user's own, beside --out
+    for mine in ("report.md", "seed_notes.txt", "fold_important/a.txt", "tensorboard/keep.txt"):
+        (logs / mine).parent.mkdir(parents=True, exist_ok=True)
+        (logs / mine).write_text("mine")
+    assert run.main([*RUN, "--out", str(out), "--logdir", str(logs), "--overwrite"]) == 0
+    assert run.main([*RUN, "--out", str(out), "--logdir", str(logs), "--overwrite"]) == 0
+    assert all((logs / mine).read_text() == "mine" for mine in ("report.md", "seed_notes.txt", "fold_important/a.txt",
+                                                                "tensorboard/keep.txt"))
+    assert len(list((logs / "fold1").iterdir())) == events
     capsys.readouterr()
     assert run.main([*RUN, "--out", str(tmp_path / "fresh"), "--resume"]) == 0
     assert f"note: no checkpoint in {tmp_path / 'fresh'}; --resume starts afresh" in capsys.readouterr().err
@@ -286,6 +300,11 @@ def test_salient_keeps_one_figure_per_image_of_the_same_name(tmp_path, capsys):
     assert run.main(["salient", str(tmp_path / "a/x.png"), str(tmp_path / "b/x.png"), "--out", str(tmp_path / "o")]) == 0
     figures = [row["figure"] for row in json.loads((tmp_path / "o" / "salient.json").read_text())]
     assert len(set(figures)) == 2 and all(os.path.isfile(f) for f in figures)
+    _coil_views(tmp_path, ["1-x.png"])
+    capsys.readouterr()
+    assert run.main(["salient", str(tmp_path / "a/x.png"), str(tmp_path / "b/x.png"), str(tmp_path / "1-x.png"),
+                     "--out", str(tmp_path / "o3")]) == 0
+    assert len(set(row["figure"] for row in json.loads((tmp_path / "o3" / "salient.json").read_text()))) == 3
 
 
 def test_a_too_small_image_is_named_by_its_file(tmp_path):
@@ -305,6 +324,8 @@ def test_colour_arrays_in_hwc_order_are_one_image():
     rgba = np.concatenate([rgb, np.full((20, 30, 1), 7, np.uint8)], axis=2)
     assert torch.equal(as_image_batch(rgba), expected)  # alpha dropped
     assert as_image_batch(np.zeros((5, 20, 30), np.uint8)).shape == (5, 1, 20, 30)  # a grey batch stays one
+    assert as_image_batch(rgb[..., :1]).shape == (1, 1, 20, 30)  # (H, W, 1): one grey image
+    assert FeatureSpace().records(rgb).canonical.shape[0] == 1  # one array given alone is its images, not its rows
 
 
 # -- 8. getting COIL-20 ---------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from ftorch.errors import InputError
 from training import run
 from training.parallel import TasksFailed, run_tasks
 
@@ -74,5 +75,9 @@ def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
 
 
 def test_a_bad_worker_count_gets_one_line(tmp_path, capsys):
-    assert run.main([*ARGS, "--out", str(tmp_path / "x"), "--workers", "0"]) == 2
-    assert "--workers 0: expected at least 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # the parser refuses it itself
+        run.main([*ARGS, "--out", str(tmp_path / "x"), "--workers", "0"])
+    assert refused.value.code == 2
+    assert "--workers: 0: expected a number of processes (an integer from 1 to 1024)" in capsys.readouterr().err
+    with pytest.raises(InputError, match="--workers 0: expected at least 1"):
+        run_tasks(len, [[1]], ["a"], workers=0)  # and the library function

@@ -172,8 +172,8 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
 
 @pytest.mark.parametrize("argv, message", [
     (["recognize", "--stages", "many"], "expected a number of expert stages"),
-    (["recognize", "--n-fgen", "0"], "--n-fgen: 0: expected a number of candidates (an integer >= 1)"),
-    (["recognize", "--size", "8"], "--size: 8: expected an image side in pixels (an integer >= 9)"),
+    (["recognize", "--n-fgen", "0"], "--n-fgen: 0: expected a number of candidates (an integer from 1 to 1000)"),
+    (["recognize", "--size", "8"], "--size: 8: expected an image side in pixels (an integer from 9 to 8192)"),
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
     (["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
 ])

@@ -10,18 +10,27 @@ import argparse
 MAX_SEED = 2**31 - 1
 
 
+class Parser(argparse.ArgumentParser):
+    """Bad options are one line, as every other bad input (argparse's usage line is left out)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
 def _integer(text: str, what: str) -> int:
     if not (text.isascii() and text.lstrip("+-").isdigit()):  # "²".isdigit() is True; int("²") fails
         raise argparse.ArgumentTypeError(f"{text!r}: expected {what}")
     return int(text)
 
 
-def at_least(minimum: int, what: str):
-    """An argparse type: an integer >= ``minimum``."""
+def at_least(minimum: int, what: str, maximum: int = 10**6):
+    """An argparse type: an integer from ``minimum`` to ``maximum`` (a bound far above any sensible
+    run, so that a typo cannot start one that never ends)."""
     def parse(text: str) -> int:
-        value = _integer(text, f"{what} (an integer >= {minimum})")
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{value}: expected {what} (an integer >= {minimum})")
+        expected = f"expected {what} (an integer from {minimum} to {maximum})"
+        value = _integer(text, expected[len("expected "):])
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"{value}: {expected}")
         return value
     parse.__name__ = what  # argparse names the type in its messages
     return parse

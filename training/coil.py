@@ -22,7 +22,7 @@ import numpy as np
 
 from ftorch.checkpoint import write_atomic
 from ftorch.errors import InputError
-from training.arguments import at_least
+from training.arguments import Parser, at_least
 from training.datasets import COIL_NAME
 from training.outputs import writable_folder
 
@@ -75,7 +75,7 @@ def prepare(archive, out, size: int = SIDE) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m training.coil", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m training.coil", description=__doc__.split("\n\n")[0])
     p.add_argument("archive", help="coil-20-proc.zip as downloaded from Columbia's CAVE lab")
     p.add_argument("--out", required=True, help="folder for obj{k}__{view}.png (created; then --data OUT)")
     p.add_argument("--size", type=at_least(9, "an image side in pixels"), default=SIDE,

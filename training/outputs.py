@@ -9,6 +9,7 @@ runs would mix.
 """
 from __future__ import annotations
 
+import re
 import shutil
 import sys
 import tempfile
@@ -16,8 +17,9 @@ from pathlib import Path
 
 from ftorch.errors import InputError
 
-RUN_ENTRIES = ("report.json", "report.md", "curves.png", "errors.png", "grasps.png", "fold*", "seed*", "tensorboard",
-               "robustness")  # what recognize, incremental and grasp write in a run folder
+RUN_ENTRIES = re.compile(r"^(report\.(json|md)|(curves|errors|grasps|reductions)\.png|fold\d+(-online)?(_features\.png)?|"
+                         r"seed\d+|robustness)$")  # what recognize, incremental and grasp write in a run folder
+EVENT_RUNS = re.compile(r"^(fold\d+(-online)?|seed\d+)$")  # TensorBoard runs in a log folder
 
 
 def writable_folder(path, option: str = "--out") -> Path:
@@ -35,28 +37,34 @@ def writable_folder(path, option: str = "--out") -> Path:
     return path
 
 
-def _runs(folder: Path) -> list[Path]:
-    """What runs write in ``folder``: checkpoints, reports, fold and seed folders, TensorBoard events
-    (empty folders left by a run that stopped at its first check do not count)."""
-    return sorted({p for pattern in RUN_ENTRIES for p in folder.glob(pattern)
-                   if not p.is_dir() or any(f.is_file() for f in p.rglob("*"))})
+def _runs(out: Path, logdir: Path) -> list[Path]:
+    """What an earlier run wrote: in ``out`` the entries runs write (``RUN_ENTRIES``, not empty
+    folders), in ``logdir`` the TensorBoard runs that hold event files and nothing else. Files of
+    other names are never counted, so ``--overwrite`` never removes them."""
+    found = [p for p in (out.iterdir() if out.is_dir() else []) if RUN_ENTRIES.match(p.name)
+             and (not p.is_dir() or any(f.is_file() for f in p.rglob("*")))]
+    if logdir.is_dir():
+        for p in logdir.iterdir():
+            files = [f for f in p.rglob("*") if f.is_file()] if p.is_dir() and EVENT_RUNS.match(p.name) else []
+            if files and all(f.name.startswith("events.out.tfevents.") for f in files) and p not in found:
+                found.append(p)
+    return sorted(found)
 
 
-def run_folder(out, logdir, resume: bool, overwrite: bool) -> tuple[Path, Path]:
+def run_folder(out, logdir, resume: bool, overwrite: bool, can_resume: bool = True) -> tuple[Path, Path]:
     """``out`` and ``logdir`` checked (:func:`writable_folder`) and free for this run: refused where a
     run already is, unless resumed or overwritten (module doc)."""
     if resume and overwrite:
         raise InputError("--resume continues the run in --out and --overwrite replaces it: give one of them")
     out, logdir = writable_folder(out), Path(logdir)
-    folders = [out] if logdir == out / "tensorboard" else [out, logdir]
-    found = [p for folder in folders for p in _runs(folder)]
+    found = _runs(out, logdir)
     if resume:
         if not list(out.glob("fold*/checkpoint.json")) and not list(out.glob("seed*/fold*/checkpoint.json")):
             print(f"note: no checkpoint in {out}; --resume starts afresh", file=sys.stderr)
     elif found and not overwrite:
-        names = ", ".join(str(p.relative_to(p.parent.parent)) for p in found[:3])
-        raise InputError(f"--out {out}: already holds a run ({names}{', ...' if len(found) > 3 else ''}); "
-                         "--resume continues it, --overwrite replaces it")
+        names = ", ".join(str(p) for p in found[:3])
+        raise InputError(f"--out {out} already holds a run ({names}{', ...' if len(found) > 3 else ''}); "
+                         + ("--resume continues it, " if can_resume else "") + "--overwrite replaces it")
     else:
         for path in found:
             shutil.rmtree(path) if path.is_dir() else path.unlink()

@@ -160,7 +160,7 @@ class Fold:
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
             self.train.load_cache_state(data["cache"], features)
             state = _checked_state(data["state"])
-        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
 

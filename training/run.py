@@ -20,10 +20,15 @@ With no command at all it runs ``recognize`` on the built-in Plym-like task into
 """
 from __future__ import annotations
 
-import argparse
-import json
+import signal
 import sys
-import time
+
+if __name__ == "__main__":  # Ctrl-C while torch is still loading is one line too (main takes over after)
+    signal.signal(signal.SIGINT, lambda *_: (print("interrupted", file=sys.stderr), sys.exit(130)))
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +40,7 @@ from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
-from training.arguments import MAX_SEED, at_least, number, seed
+from training.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
 from training.devices import resolve_device
@@ -45,11 +50,13 @@ from training.protocol import Fold, confusion, feature_block, test_block
 from training.curves import write_curves
 from training.grasping.command import add_parser as add_grasp_parser
 from training.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
-from training.report import ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
+from training.report import COLUMNS, ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
 
 
 def salient(args) -> int:
     device = resolve_device(args.device)
+    if not 0 < args.truncate <= 10:
+        raise InputError(f"--truncate {args.truncate}: expected a kernel radius in (0, 10] sigmas")
     out = writable_folder(args.out)
     if args.images:
         names = [Path(p) for p in args.images]
@@ -63,8 +70,9 @@ def salient(args) -> int:
     counts = records.counts()
     summary = []
     stems = [name.stem for name in names]
+    clash = len(set(stems)) < len(stems)  # a/x.png and b/x.png: number every figure, so none is lost
     for n, (name, image) in enumerate(zip(names, images)):
-        stem = stems[n] if stems.count(stems[n]) == 1 else f"{n + 1}-{stems[n]}"  # a/x.png and b/x.png: two figures
+        stem = f"{n + 1}-{stems[n]}" if clash else stems[n]
         target = out / f"{stem}_salient.png"
         row = {"image": str(name), "edgels": counts["edgels"][n], "blobs": counts["blobs"][n],
                "corners": counts["corners"][n], "figure": str(target)}
@@ -134,12 +142,15 @@ MIN_INFORMATION = 0.1  # bits; see the README's chapter 5 decisions
 PSEUDOCOUNT, REDUNDANCY = 1.0, 3
 
 
+MAX_STAGES = 100
+
+
 def _stages(text: str) -> int | None:
     if text == "auto":
         return None
-    if text.isascii() and text.isdigit():  # "²".isdigit() holds too
+    if text.isascii() and text.isdigit() and int(text) <= MAX_STAGES:  # "²".isdigit() holds too
         return int(text)
-    raise InputError(f"--stages {text!r}: expected a number of expert stages (0, 1, ...) or auto")
+    raise InputError(f"--stages {text!r}: expected a number of expert stages (0 to {MAX_STAGES}) or auto")
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
@@ -293,7 +304,8 @@ def evaluate_command(args) -> int:
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.checkpoint} on {args.data}", "",
              f"accuracy {result['test']['accuracy']:.2f}; " + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
-             "", *confusion_table(result["confusion"], classes), "", *ambiguity_table(result["confusion"], classes), ""]
+             "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result["confusion"], classes), "",
+             "## Ambiguous recognitions (table 4.4 form)", "", *ambiguity_table(result["confusion"], classes), ""]
     write_text(out / "evaluate.md", "\n".join(lines))
     print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, correct {result['test']['correct']:.2f}; "
           f"report: {out / 'evaluate.md'}")
@@ -321,7 +333,9 @@ def robustness_command(args) -> int:
         task = load_task(config["task"], data, len(config["classes"]), config["views"],
                          config["size"], config["seed"], config["first_view"])
         folds = [f["fold"] for f in report["folds"]]
-    except (OSError, ValueError, KeyError, TypeError) as err:
+        if not folds:
+            raise ValueError("no folds")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
         raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     start = time.perf_counter()
     space = FeatureSpace().to(device)
@@ -362,19 +376,19 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--stages", default="auto", help="expert stages after stage 0 (0: chapter 4 learning only), "
                    "or auto: until t_KSD = 1 or two stages in a row miss their target (default auto)")
     p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--seeds", type=at_least(1, "a number of seeds"), default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
+    p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
                    "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
-    p.add_argument("--size", type=at_least(9, "an image side in pixels"), help="image side in pixels: Plym renders at it (default 64); COIL images "
+    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="image side in pixels: Plym renders at it (default 64); COIL images "
                    "are area-averaged down to it on load (default: as stored, e.g. 32 or 128)")
-    p.add_argument("--n-ex", type=at_least(1, "a number of images"), default=5, help="example images per class, alg. 4.8 (default 5)")
-    p.add_argument("--n-fgen", type=at_least(1, "a number of candidates"), default=10, help="candidates per generation method, alg. 4.10 (default 10)")
+    p.add_argument("--n-ex", type=at_least(1, "a number of images", 1000), default=5, help="example images per class, alg. 4.8 (default 5)")
+    p.add_argument("--n-fgen", type=at_least(1, "a number of candidates", 1000), default=10, help="candidates per generation method, alg. 4.10 (default 10)")
     p.add_argument("--min-information", type=number, default=MIN_INFORMATION, metavar="BITS",
                    help=f"stop a recognition once no unqueried feature has more mutual information with a class "
                         f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same splits")
-    p.add_argument("--search-rounds", type=at_least(1, "a number of calls"), default=1, metavar="N",
+    p.add_argument("--search-rounds", type=at_least(1, "a number of calls", 100), default=1, metavar="N",
                    help="calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate reaches t_KSD (default 1)")
-    p.add_argument("--redundancy", type=at_least(1, "a number of features"), default=REDUNDANCY, metavar="K",
+    p.add_argument("--redundancy", type=at_least(1, "a number of features", 100), default=REDUNDANCY, metavar="K",
                    help=f"distinctive features each needed class distinction should have, 7.2.4 (default {REDUNDANCY}; "
                         "1: alg. 5.2 as printed)")
     p.add_argument("--evidence", choices=EVIDENCE, default="both",
@@ -383,28 +397,21 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help=f"added to every CPT count (default {PSEUDOCOUNT:g}; 0: relative frequencies as the thesis)")
     p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
-    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles"), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
+    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (without it, or --resume, "
                    "a folder that holds a run is refused)")
-    p.add_argument("--workers", type=at_least(1, "a number of processes"), default=1, help="run the folds and seeds as N local processes at once "
+    p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1, help="run the folds and seeds as N local processes at once "
                    "(default 1: one after another); the report is the same")
     p.add_argument("--ray", metavar="ADDRESS", help="run the folds and seeds as tasks on a Ray cluster (ray.init "
                    "address, e.g. auto or ray://HEAD:10001; local: a local instance with --workers CPUs); "
                    "needs the distributed extra")
 
 
-class _Parser(argparse.ArgumentParser):
-    """Bad options are one line, as every other bad input (argparse's usage line is left out)."""
-
-    def error(self, message: str):
-        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
-
-
 def parser() -> argparse.ArgumentParser:
-    top = _Parser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
+    top = Parser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command")
     p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
     _training_options(p, "plym")
@@ -440,6 +447,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     argv = sys.argv[1:] if argv is None else argv
     args = parser().parse_args(argv or ["recognize"])
     try:

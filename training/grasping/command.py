@@ -157,7 +157,8 @@ def grasp_command(args) -> int:
         raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
     start = time.perf_counter()
     out = Path(args.out or f"runs/grasp-{args.experiment}")
-    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite)
+    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite,
+                             can_resume=False)
     parallel = args.workers > 1 or args.ray is not None
     settings = {k: v for k, v in vars(args).items() if k != "run"}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
@@ -200,23 +201,23 @@ def add_parser(commands) -> None:
     p.add_argument("--experiment", choices=EXPERIMENTS, default="clean",
                    help="clean (6.13a), noisy (6.13b), cue (6.14) or mixed (6.17; default clean)")
     p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--pool", type=int, default=80, help="simulated grasps per category (object kind and fingers; default 80)")
-    p.add_argument("--best", type=int, default=20, help="training grasps per category and fold (default 20)")
-    p.add_argument("--epochs", type=int, default=10, help="passes over the training grasps (default 10)")
+    p.add_argument("--pool", type=at_least(1, "a number of grasps", 100000), default=80, help="simulated grasps per category (object kind and fingers; default 80)")
+    p.add_argument("--best", type=at_least(1, "a number of grasps", 100000), default=20, help="training grasps per category and fold (default 20)")
+    p.add_argument("--epochs", type=at_least(1, "a number of passes", 1000), default=10, help="passes over the training grasps (default 10)")
     p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
     p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="pooled",
                    help="alg. 6.2 step 2b: pooled (default): E[mu_0] over every present feature, weighted by its "
                         "support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp.py)")
-    p.add_argument("--size", type=int, default=64, help="camera image side in pixels (default 64)")
-    p.add_argument("--folds", type=int, default=2, help="1 or 2 folds (default 2)")
+    p.add_argument("--size", type=at_least(1, "an image side in pixels", 1024), default=64, help="camera image side in pixels (default 64)")
+    p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
                    "recommended grasps, and report off-line vs on-line")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--out", help="run folder (default runs/grasp-EXPERIMENT)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
-    p.add_argument("--seeds", type=at_least(1, "a number of seeds"), default=1, help="repeat the experiment with seeds "
+    p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1, help="repeat the experiment with seeds "
                    "SEED, SEED+1, ... (into OUT/seedN): per-seed results and the spread of the reductions (default 1)")
-    p.add_argument("--workers", type=at_least(1, "a number of processes"), default=1,
+    p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1,
                    help="run the seeds as N local processes at once (default 1: one after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run the seeds as tasks on a Ray cluster (see recognize --help)")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (refused without it)")

@@ -34,7 +34,7 @@ def _histogram(ax, values, bins: np.ndarray, xlabel: str, label: str, colour: st
 def error_figure(errors: list, title: str) -> np.ndarray:
     """Figure 6.13: prediction error magnitudes (degrees; no prediction counts in the last bin)."""
     figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
-    _histogram(ax, errors, ERROR_BINS, "orientation error, degrees (last bin: > 60 or no prediction)",
+    _histogram(ax, errors, ERROR_BINS, "orientation error, degrees (last bin: > 60, none)",
                "test grasps", "C0")
     ax.set_title(title, fontsize=9)
     figure.tight_layout()
