@@ -504,8 +504,8 @@ class DistinctiveFeatureLearner:
             if net.label in self.networks:
                 raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net
-        if not self.networks:
-            raise ValueError("no class network")
+        if not self.networks and "instances" not in state:
+            raise ValueError("a recognition file without a class network")  # a fresh learner's full state has none
         self.trainable = "instances" in state
         self.discriminates, self.usage, self.instances = {}, {}, InstanceList()
         self.generator = torch.Generator()

@@ -98,7 +98,7 @@ DAMAGE = {
     "a huge integer in the prior": lambda s: s["networks"][0]["prior"].__setitem__(0, 10**400),
     "a CPT of impossible shape": lambda s: s["networks"][0]["cpt"][0].__setitem__("shape", [1e999, 2]),
     "n_ex not an integer": lambda s: s.__setitem__("n_ex", 5.7),
-    "no class network": lambda s: s.__setitem__("networks", []),
+    "a recognition file without a network": lambda s: (s.__setitem__("networks", []), s.pop("instances")),
 }
 
 
