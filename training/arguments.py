@@ -6,6 +6,7 @@ RNG) with room for the offsets it adds (seed + n for --seeds, 100 * seed + fold 
 from __future__ import annotations
 
 import argparse
+import math
 
 MAX_SEED = 2**31 - 1
 
@@ -26,11 +27,12 @@ def _integer(text: str, what: str) -> int:
 def at_least(minimum: int, what: str, maximum: int = 10**6):
     """An argparse type: an integer from ``minimum`` to ``maximum`` (a bound far above any sensible
     run, so that a typo cannot start one that never ends)."""
+    described = f"{what} (an integer from {minimum} to {maximum})"
+
     def parse(text: str) -> int:
-        expected = f"expected {what} (an integer from {minimum} to {maximum})"
-        value = _integer(text, expected[len("expected "):])
+        value = _integer(text, described)
         if not minimum <= value <= maximum:
-            raise argparse.ArgumentTypeError(f"{value}: {expected}")
+            raise argparse.ArgumentTypeError(f"{value}: expected {described}")
         return value
     parse.__name__ = what  # argparse names the type in its messages
     return parse
@@ -49,6 +51,6 @@ def number(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
-    if value != value or value in (float("inf"), float("-inf")):
+    if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number")
     return value

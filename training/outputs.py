@@ -2,7 +2,7 @@
 
 Every command calls :func:`writable_folder` for ``--out`` (and ``--logdir``) first, so a path
 that is a file, cannot be created or cannot be written gives one line before a minute is spent.
-``recognize`` and ``incremental`` also call :func:`run_folder`: a folder that already holds a
+``recognize``, ``incremental`` and ``grasp`` call :func:`run_folder` instead: a folder that already holds a
 run is continued with ``--resume``, replaced with ``--overwrite`` (only the files runs write are
 removed), and otherwise refused, since fold folders, seed folders and TensorBoard events of two
 runs would mix.
