@@ -148,19 +148,23 @@ def _fit_batch(theta: Tensor, mask: Tensor, ks: Tensor, max_kappa: float, max_st
     resp = resp.to(theta.dtype)
     n = weight.sum(1)
     previous = torch.full_like(n, -math.inf)
+    done = torch.zeros_like(n, dtype=torch.bool)
     kappa = None
     for _ in range(max_steps):
         resp = resp * weight[:, :, None]
         mass = resp.sum(1)
         z = (torch.polar(torch.ones_like(theta), theta)[:, :, None] * resp).sum(1)
-        mu = torch.angle(z)
-        kappa = kappa_ml(z.abs() / mass.clamp_min(1e-12), max_kappa, 2 if kappa is not None else 4, kappa)
-        log_weight = torch.log(mass / n[:, None]).masked_fill(~active, -math.inf)
+        step = [torch.angle(z), kappa_ml(z.abs() / mass.clamp_min(1e-12), max_kappa, 2 if kappa is not None else 4, kappa),
+                torch.log(mass / n[:, None]).masked_fill(~active, -math.inf)]
+        if kappa is not None:  # a converged row keeps its fit: each row's result is that of its own EM
+            step = [torch.where(done[:, None], old, new) for old, new in zip((mu, kappa, log_weight), step)]
+        mu, kappa, log_weight = step
         log_joint = _component_log(theta, mu, kappa, log_weight)
         log_mix = torch.logsumexp(log_joint, -1)
         ll = (log_mix * weight).sum(1)
         resp = torch.exp(log_joint - log_mix[:, :, None])
-        if bool(((ll - previous) <= tol * n).all()):
+        done = done | ((ll - previous) <= tol * n)
+        if bool(done.all()):
             break
         previous = ll
     entropy = torch.where(resp > 0, resp * resp.clamp_min(1e-300).log(), torch.zeros_like(resp)).sum(-1)
