@@ -32,8 +32,8 @@ Decisions the text leaves open:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import NamedTuple
+from dataclasses import dataclass, field
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import torch
@@ -89,6 +89,7 @@ class FeatureModel:
     offset: float  # mu_{k*} of alg. 6.2 step 3
     expected_mu0: float
     support: int  # instances above alpha_f that eq. 6.4 and 6.8 were fitted on
+    rows: np.ndarray | None = field(default=None, repr=False, compare=False)  # those instances' rows
 
     def to_dict(self) -> dict:
         return {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
@@ -109,6 +110,7 @@ class GraspFeatureSet:
         self._sources: list[ImageRecords] = []  # distinct image records; rows of one image share them
         self._source_index: dict[int, int] = {}  # id of a stored (hence live) records object -> its source
         self._source_of_row: list[int] = []
+        self._first_row: list[int] = []  # per source
         self._batch: ImageRecords | None = None
         self._measured: tuple | None = None  # (records, values, thetas) of the last measure; None once features change
         self.values = np.zeros((0, 0))
@@ -123,39 +125,51 @@ class GraspFeatureSet:
         return len(self.features)
 
     def measure(self, records: ImageRecords) -> tuple[np.ndarray, np.ndarray]:
-        """Values and orientations (F,) of every feature of the set in one image (step 2a). The last
-        result is kept: recommending, trying and learning on one image measure it once."""
+        """Values and orientations (B, F) of every feature of the set in each image of ``records``
+        (step 2a), measured as one batch. An image of the instance list is read from its row (every
+        feature was measured on it when the image or the feature arrived); the last result is kept,
+        so recommending, trying and learning on one image measure it once."""
+        source = self._source_index.get(id(records))
+        if source is not None and self._sources[source] is records:
+            row = self._first_row[source]
+            return self.values[row:row + 1], self.thetas[row:row + 1]
         last = self._measured
         if last is not None and last[0] is records:
             return last[1], last[2]
         if not self.features:
-            return np.zeros(0), np.zeros(0)
+            return np.zeros((len(records), 0)), np.zeros((len(records), 0))
         found = feature_values(self.features, records)
-        values, thetas = found.values[:, 0].double().cpu().numpy(), found.theta[:, 0].double().cpu().numpy()
+        values, thetas = found.values.T.double().cpu().numpy(), found.theta.T.double().cpu().numpy()
         self._measured = (records, values, thetas)
         return values, thetas
 
-    def choose(self, values: np.ndarray) -> int | None:
-        """Step 2b: the present feature (value > alpha_f) of largest KSD_f, None where none is."""
-        best, best_ksd = None, 0.0
-        for j, model in enumerate(self.models):
-            if model is not None and values[j] > model.alpha and model.ksd > best_ksd:
-                best, best_ksd = j, model.ksd
-        return best
+    def _model_arrays(self) -> np.ndarray:
+        """alpha_f, KSD_f, eq. 6.8's E[mu_0] and support, (4, F); a feature without a model is never present."""
+        table = [(m.alpha, m.ksd, m.expected_mu0, m.support) if m is not None else (math.inf, 0.0, 0.0, 0)
+                 for m in self.models]
+        return np.array(table, dtype=float).reshape(len(self.models), 4).T
 
-    def pooled_mu0(self, values: np.ndarray) -> float | None:
-        """E[mu_0] of a grasp with this set's fingers given one image's measurements: eq. 6.8 of every
-        present feature, weighted by its support (module doc, "pooled"); None without one."""
-        present = [(m.support, m.expected_mu0) for j, m in enumerate(self.models) if m is not None and values[j] > m.alpha]
-        if not present:
-            return None
-        support, expected = np.array(present, dtype=float).T
-        return float((support * expected).sum() / support.sum())
+    def choose(self, values: np.ndarray) -> np.ndarray:
+        """Step 2b for each image (B, F) -> (B,): the present feature (value > alpha_f) of largest KSD_f
+        (the first where tied), -1 where none is."""
+        alpha, power = self._model_arrays()[:2]
+        score = np.where((values > alpha) & (power > 0), power, 0.0)
+        if not score.shape[1]:
+            return np.full(len(values), -1)
+        return np.where(score.max(1) > 0, score.argmax(1), -1)
+
+    def pooled_mu0(self, values: np.ndarray) -> np.ndarray:
+        """E[mu_0] of a grasp with this set's fingers given each image's measurements (B, F) -> (B,): eq.
+        6.8 of every present feature, weighted by its support (module doc, "pooled"); NaN without one."""
+        alpha, _, expected, support = self._model_arrays()
+        weight = np.where(values > alpha, support, 0.0)
+        total = weight.sum(1)
+        return np.where(total > 0, (weight * expected).sum(1) / np.where(total > 0, total, 1.0), np.nan)
 
     def predict(self, values: np.ndarray, thetas: np.ndarray) -> tuple[int, float] | None:
-        """Steps 2b-4: (f*, theta_h) for one image's measurements, None without a present feature."""
-        j = self.choose(values)
-        return None if j is None else (j, float(thetas[j] + self.models[j].offset))
+        """Steps 2b-4: (f*, theta_h) for one image's measurements (F,), None without a present feature."""
+        j = int(self.choose(values[None, :])[0])
+        return None if j < 0 else (j, float(thetas[j] + self.models[j].offset))
 
     def add_instance(self, image, records: ImageRecords, values, thetas, experience: Experience) -> None:
         """Step 5: one row of the instance list per distinct ``image`` (presenting an image again with
@@ -167,6 +181,7 @@ class GraspFeatureSet:
         if id(records) not in self._source_index:
             self._source_index[id(records)], self._batch = len(self._sources), None
             self._sources.append(records)
+            self._first_row.append(len(self.images) - 1)
         self._source_of_row.append(self._source_index[id(records)])
         self.values = np.vstack([self.values, values[None, :]])
         self.thetas = np.vstack([self.thetas, thetas[None, :]])
@@ -230,14 +245,21 @@ class GraspFeatureSet:
         power[perfect], alpha[perfect] = 1.0, -math.inf
         chosen = located[:, modelled] & (self.values[:, modelled] > alpha[None, :])
         usable = [i for i in range(len(modelled)) if power[i] > 0 and chosen[:, i].sum() >= min_points]
-        fitted = fit_mixtures([offsets[chosen[:, i], modelled[i]] for i in usable], max_k) if usable else []
+        rows = {i: np.flatnonzero(chosen[:, i]) for i in usable}
+        previous = {i: self.models[modelled[i]] for i in usable}
+        # A model fitted to the same instances keeps its mixture: EM on the same points reaches the
+        # same fit (each fit is independent of its batch, ftorch/vonmises.py), so only changed ones are fitted.
+        kept = {i: m.mixture for i, m in previous.items() if m is not None and np.array_equal(m.rows, rows[i])}
+        refit = [i for i in usable if i not in kept]
+        fitted = {**kept, **dict(zip(refit, fit_mixtures([offsets[rows[i], modelled[i]] for i in refit], max_k)
+                                          if refit else []))}
         self.models = [None] * len(self)
-        for i, mix in zip(usable, fitted):
-            j, rows = modelled[i], chosen[:, i]
-            weight = mix.pdf(torch.from_numpy(offsets[rows, j])).numpy()
-            expected = float((weight * self.mu0[rows]).sum() / max(weight.sum(), 1e-300))
+        for i in usable:
+            j, mix, points = modelled[i], fitted[i], rows[i]
+            weight = mix.pdf(torch.from_numpy(offsets[points, j])).numpy()
+            expected = float((weight * self.mu0[points]).sum() / max(weight.sum(), 1e-300))
             offset = float(mix.mu[mix.concentrated(min_points)])
-            self.models[j] = FeatureModel(float(power[i]), float(alpha[i]), mix, offset, expected, int(rows.sum()))
+            self.models[j] = FeatureModel(float(power[i]), float(alpha[i]), mix, offset, expected, len(points), points)
 
 
 class GraspLearner:
@@ -274,21 +296,34 @@ class GraspLearner:
     def recommend(self, records: ImageRecords, fingers: int | None = None) -> Recommendation | None:
         """Steps 2-4 on one image: c (given, or the set whose f*_c expects the lower mu_0) and theta_h.
         Pure: only :meth:`learn` counts f*_c as used, for the set that grasped."""
-        best = None
-        for c in self._candidates(records, fingers):
-            values, thetas = self.sets[c].measure(records)
-            chosen = self._predict(c, values, thetas)
-            if chosen is not None and self.finger_choice == "pooled":
-                chosen = chosen._replace(expected_mu0=self.sets[c].pooled_mu0(values))
-            if chosen is not None and (best is None or chosen.expected_mu0 < best.expected_mu0):
-                best = chosen
+        self._candidates(records, fingers)
+        return self.recommend_all(records, [fingers])[0]
+
+    def recommend_all(self, records: ImageRecords, fingers: Sequence[int | None] | None = None
+                      ) -> list[Recommendation | None]:
+        """:meth:`recommend` for every image of ``records``, each set measured once on the batch;
+        ``fingers`` gives each image's finger count (None: chosen by step 2b)."""
+        fingers = [None] * len(records) if fingers is None else list(fingers)
+        if len(fingers) != len(records) or any(c is not None and c not in self.sets for c in fingers):
+            raise InputError(f"fingers: expected one of {FINGERS} or None for each of the {len(records)} images")
+        best: list[Recommendation | None] = [None] * len(records)
+        for c, feature_set in self.sets.items():
+            values, thetas = feature_set.measure(records)
+            chosen = feature_set.choose(values)
+            expected = (feature_set.pooled_mu0(values) if self.finger_choice == "pooled"
+                        else feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(records)))
+            for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):
+                if best[i] is None or expected[i] < best[i].expected_mu0:
+                    j, model = int(chosen[i]), feature_set.models[chosen[i]]
+                    best[i] = Recommendation(c, float(thetas[i, j] + model.offset), feature_set.features[j], model.ksd,
+                                             float(expected[i]))
         return best
 
     def untried(self, records: ImageRecords) -> list[int]:
         """Finger counts whose set has no present feature in this image, hence no estimate of mu_0 for
         step 2b. An on-line learner tries them (the thesis's off-line data never needed to), or a set
         without features would never gain the experience that gives it some."""
-        return [c for c in self._candidates(records, None) if self.sets[c].choose(self.sets[c].measure(records)[0]) is None]
+        return [c for c in self._candidates(records, None) if self.sets[c].choose(self.sets[c].measure(records)[0])[0] < 0]
 
     def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray, use: bool = False) -> Recommendation | None:
         feature_set = self.sets[c]
@@ -307,7 +342,7 @@ class GraspLearner:
         or 'sampled' (step 10)."""
         c = self._candidates(records, experience.fingers)[0]
         feature_set = self.sets[c]
-        values, thetas = feature_set.measure(records)
+        values, thetas = (a[0] for a in feature_set.measure(records))
         before = self._predict(c, values, thetas, use=True)
         feature_set.add_instance(image, records, values, thetas, experience)
         feature_set.grasps += 1

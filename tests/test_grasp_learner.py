@@ -127,7 +127,7 @@ def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(cle
     fold.fit(2)  # F_2 and F_3 now hold features
     calls = []
     monkeypatch.setattr(grasp, "feature_values", lambda f, r: calls.append(len(f)) or feature_values(f, r))
-    trial = fold.objects[0]
+    trial = next(t for t in fold.objects if t.key not in {u.key for u in fold.train})
     records = fold.records[trial.key]
     fresh = {c: s.measure(records) for c, s in learner.sets.items()}
     assert len(calls) == 2
@@ -139,13 +139,39 @@ def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(cle
     assert len(calls) == 2
     assert cue is not None and {c: s.used for c, s in learner.sets.items()} == used  # recommending is pure
     for c, s in learner.sets.items():  # the kept result is the one a fresh measurement gives
-        np.testing.assert_array_equal(s.measure(records)[0], feature_values(s.features, records).values[:, 0].double().numpy())
+        np.testing.assert_array_equal(s.measure(records)[0][0], feature_values(s.features, records).values[:, 0].double().numpy())
     s = learner.sets[2]
     s.add_features([random_edgel_pair(records, 0, torch.Generator().manual_seed(5))])  # measured on the instance list
     calls.clear()
     values, thetas = s.measure(records)
-    assert calls == [len(s)] and values.shape == thetas.shape == (len(s),)
-    np.testing.assert_array_equal(values[:-1], fresh[2][0][: len(s) - 1])
+    assert calls == [len(s)] and values.shape == thetas.shape == (1, len(s))
+    np.testing.assert_array_equal(values[0, :-1], fresh[2][0][0, : len(s) - 1])
+    calls.clear()  # an image of the instance list is read from its row, which a fresh measurement confirms
+    trained = fold.records[next(t.key for t in fold.train if t.fingers == 2)]
+    values, thetas = s.measure(trained)
+    assert calls == [] and values.shape == (1, len(s))
+    again = feature_values(s.features, trained)
+    np.testing.assert_allclose(values[0], again.values[:, 0].double().numpy(), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(thetas[0], again.theta[:, 0].double().numpy(), rtol=1e-6, atol=1e-6)
+
+
+def test_recommendations_for_a_batch_are_those_for_each_image(clean_pool):
+    learner = GraspLearner(math.radians(10), seed=0)
+    fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
+    fold.fit(2)
+    keys = [t.key for t in fold.objects]
+    batch = FeatureSpace().records([torch.from_numpy(t.image) for t in fold.objects])
+    fingers = [None, 2, 3] * (len(keys) // 3) + [None] * (len(keys) % 3)
+    together = learner.recommend_all(batch, fingers)
+    alone = [learner.recommend(fold.records[k], f) for k, f in zip(keys, fingers)]
+    assert sum(r is not None for r in alone) > len(keys) // 2
+    for a, b in zip(alone, together):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert (a.fingers, a.feature, a.ksd) == (b.fingers, b.feature, b.ksd)
+            assert a.theta_h == pytest.approx(b.theta_h, abs=1e-6) and a.expected_mu0 == pytest.approx(b.expected_mu0)
+    with pytest.raises(InputError, match="for each of"):
+        learner.recommend_all(batch, [2])
 
 
 def test_bad_input_is_refused(clean_pool):
@@ -216,7 +242,7 @@ def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_objec
         three.features = [Texel([0.0, 0.0, 1.0] + [0.0] * 12)]
         three.models = [model(0.7, 20, 0.45)]  # squares grasped with three fingers
         for s in (two, three):
-            s.measure = lambda records, s=s: (np.full(len(s.features), 0.9), np.zeros(len(s.features)))
+            s.measure = lambda records, s=s: (np.full((1, len(s.features)), 0.9), np.zeros((1, len(s.features))))
     records = [None]  # one image's records; measure is replaced, so no image is needed
     thesis, pooled = learner["thesis"].recommend(records), learner["pooled"].recommend(records)
     assert thesis.fingers == 3 and thesis.expected_mu0 == 0.45  # the failure, kept available as the thesis's rule

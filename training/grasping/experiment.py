@@ -113,25 +113,25 @@ class GraspFold:
         self.train = [t for c in categories(experiment) for t in choose(half[c], experiment, best)]
         self.test = [t for c in categories(experiment) for t in choose(held[c], experiment, best)]
         self.objects = [t for c in categories(experiment) for t in held[c]]
+        trials = list({t.key: t for t in self.train + self.test + self.objects}.values())
         with torch.no_grad():
-            self.records = self._records(space, {t.key: t for t in self.train + self.test + self.objects}.values())
+            self.batch = space.records([torch.from_numpy(t.image) for t in trials], progress=self.progress)
+        self.position = {t.key: i for i, t in enumerate(trials)}
+        self.records: dict[tuple, ImageRecords] = {t.key: self.batch[i] for i, t in enumerate(trials)}
         self.epochs: list[dict] = []
 
-    def _records(self, space: FeatureSpace, trials) -> dict[tuple, ImageRecords]:
-        trials = list(trials)
-        batch = space.records([torch.from_numpy(t.image) for t in trials], progress=self.progress)
-        return {t.key: batch[i] for i, t in enumerate(trials)}
+    def _fingers(self, trial: Trial) -> int | None:
+        return None if self.experiment == "mixed" else trial.fingers
 
     def recommendation(self, trial: Trial):
         """The learner's cue for a trial's image: its category's fingers, or chosen in ``mixed``."""
-        fingers = None if self.experiment == "mixed" else trial.fingers
-        return self.learner.recommend(self.records[trial.key], fingers)
+        return self.learner.recommend(self.records[trial.key], self._fingers(trial))
 
     def _explore(self, trial: Trial) -> tuple[int, float | None]:
         """On-line: fingers and start azimuth for a training grasp. Where the finger count is free
         (mixed) and a set has no present feature, that count is tried from a random azimuth (the
         trial's own count first); otherwise the recommendation, or a random start without one."""
-        untried = self.learner.untried(self.records[trial.key]) if self.experiment == "mixed" else []
+        untried = self.learner.untried(self.records[trial.key]) if self._fingers(trial) is None else []
         if untried:
             return (trial.fingers if trial.fingers in untried else untried[0]), None
         cue = self.recommendation(trial)
@@ -165,15 +165,15 @@ class GraspFold:
                 break
 
     def evaluate(self) -> dict:
-        """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects."""
-        tested, errors = {t.key for t in self.test}, {}
+        """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects,
+        recommended for all of them at once (the test grasps are among them: each image is measured once)."""
+        held = self.batch[torch.tensor([self.position[t.key] for t in self.objects])]
+        given = self.learner.recommend_all(held, [t.fingers for t in self.objects])
+        chosen = self.learner.recommend_all(held, [self._fingers(t) for t in self.objects])
+        errors = {t.key: None if cue is None else math.degrees(float(angular_error(cue.theta_h, t.outcome.theta_H, t.period)))
+                  for t, cue in zip(self.objects, given)}
         haptic, cued = [], []
-        for trial in self.objects:  # the test grasps are among them; each image is measured once
-            if trial.key in tested:
-                cue = self.learner.recommend(self.records[trial.key], trial.fingers)
-                errors[trial.key] = (None if cue is None else
-                                     math.degrees(float(angular_error(cue.theta_h, trial.outcome.theta_H, trial.period))))
-            cue = self.recommendation(trial)
+        for trial, cue in zip(self.objects, chosen):
             fingers = cue.fingers if cue is not None else trial.fingers
             outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 0, self.controller)
             haptic.append(_grasp_row(trial, trial.outcome))
