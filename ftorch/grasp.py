@@ -16,8 +16,9 @@ Decisions the text leaves open:
   empty distribution's cdf is 1 everywhere); it needs ``min_points`` correct ones to be usable.
 - Eq. 6.8 weights each instance above alpha_f by the model's density at its offset; mu_0 is
   capped at ``MU0_CAP`` (an infinite mu_0, no equilibrium, would swamp the average).
-- Unused features (never f*_c in the last ``discard_every`` grasps of their set, and at least
-  that old) are discarded after every ``discard_every`` grasps.
+- Unused features (never f*_c, nor the feature behind the quality split of step 2b, in the last
+  ``discard_every`` grasps of their set, and at least that old) are discarded after every
+  ``discard_every`` grasps.
 - Step 2b's finger choice (``finger_choice``). "thesis": compare E[mu_0] of f*_2 and f*_3, the
   features chosen for their orientation power (KSD_f). "pooled" (beyond chapter 6): compare, per
   set, the mean of eq. 6.8 over *all* features present in the image, each weighted by its support
@@ -28,6 +29,21 @@ Decisions the text leaves open:
   E[mu_0] = .49 made 28 of 80 held-out squares take three fingers. Pooling over the present
   features, with their support, chose right for 73 of 80 squares (thesis rule 52, every triangle
   right under both).
+  "quality" (beyond chapter 6; the default of ``grasp``): over seeds 100-104 pooling still failed
+  (reductions of poor grasps 79, 36, 41, 8 and 82 %): in seed 102 every training category's mu_0 lies
+  in its own narrow band (good .01-.05, poor .42-.57), so choosing the finger count is telling the
+  object kinds apart, yet nearly every modelled feature is present (above its orientation alpha_f)
+  on both kinds, and support-weighted means of eq. 6.8 come out alike for both sets. A feature may
+  still *respond* differently to the two kinds. So each feature also gets a quality split: the KSD
+  (def. 4.2, in either direction, alg. 6.1's machinery with good and poor grasps in place of correct
+  and false predictions) between its values on the set's good (mu_0 <= ``mu0_split``) and poor
+  instances, its cut-point, and the mean mu_0 of the instances on each side (each side at least
+  ``min_points``). Step 2b then takes, per set, the measured feature of largest quality KSD and the
+  mean mu_0 on the image's side of its cut-point (pooled where no split exists yet).
+- Quality mistakes (``mu0_split``, beyond chapter 6): alg. 6.2 learns only from orientation mistakes,
+  so nothing drives the search towards features that tell good from poor grasps. With a split, a
+  grasp whose E[mu_0] (step 2b's) lies on the other side of it than the measured mu_0 is a mistake as
+  well: steps 7-10 refit and, if still wrong, sample two new features from the image.
 """
 from __future__ import annotations
 
@@ -48,7 +64,7 @@ from .vonmises import VonMisesMixture, fit_mixtures
 
 MU0_CAP = 2.0
 FINGERS = (2, 3)
-FINGER_CHOICES = ("thesis", "pooled")  # alg. 6.2 step 2b: see the module doc
+FINGER_CHOICES = ("thesis", "pooled", "quality")  # alg. 6.2 step 2b: see the module doc
 
 
 def angular_error(predicted, actual, period) -> np.ndarray:
@@ -118,6 +134,7 @@ class GraspFeatureSet:
         self.theta_H = np.zeros(0)
         self.mu0 = np.zeros(0)
         self.period = np.zeros(0)
+        self.quality = np.zeros((4, 0))  # per feature: KSD, cut-point, E[mu_0] above and below it ("quality")
         self.grasps = 0
         self.sampled = 0
 
@@ -166,6 +183,39 @@ class GraspFeatureSet:
         total = weight.sum(1)
         return np.where(total > 0, (weight * expected).sum(1) / np.where(total > 0, total, 1.0), np.nan)
 
+    def quality_mu0(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """E[mu_0] given each image's measurements (B, F) -> (B,) by the set's best quality split (module
+        doc, "quality"): the mean mu_0 of the instances on the image's side of the cut-point of the
+        measured feature of largest quality KSD; NaN where none has one. Also that feature (B,), -1 there."""
+        power, cut, above, below = self.quality
+        score = np.where(np.isfinite(values) & (power > 0), power, 0.0)
+        if not score.shape[1]:
+            return np.full(len(values), np.nan), np.full(len(values), -1)
+        j = score.argmax(1)
+        rows = np.arange(len(values))
+        found = score[rows, j] > 0
+        expected = np.where(values[rows, j] > cut[j], above[j], below[j])
+        return np.where(found, expected, np.nan), np.where(found, j, -1)
+
+    def fit_quality(self, mu0_split: float, min_points: int) -> None:
+        """Quality splits ("quality", beyond chapter 6): per feature, the KSD (def. 4.2, either direction)
+        between its values on good (mu_0 <= split) and poor instances, its cut-point, and the mean mu_0
+        on each side; a side with fewer than ``min_points`` instances gives no split."""
+        if not self.features or not self.images:
+            self.quality = np.zeros((4, len(self)))
+            return
+        values = torch.from_numpy(self.values.T.copy())
+        good = torch.from_numpy(self.mu0 <= mu0_split)
+        split = ksd(values, good, ~good)
+        distance, cut = split.distance.numpy(), split.cutpoint.numpy()
+        located = np.isfinite(self.values)
+        high = located & (self.values > cut[None, :])
+        low = located & ~high
+        count = np.stack([high.sum(0), low.sum(0)])
+        mean = np.stack([(side * self.mu0[:, None]).sum(0) for side in (high, low)]) / np.maximum(count, 1)
+        enough = (count >= min_points).all(0) & np.isfinite(cut)
+        self.quality = np.stack([np.where(enough, distance, 0.0), cut, *mean])
+
     def predict(self, values: np.ndarray, thetas: np.ndarray) -> tuple[int, float] | None:
         """Steps 2b-4: (f*, theta_h) for one image's measurements (F,), None without a present feature."""
         j = int(self.choose(values[None, :])[0])
@@ -207,6 +257,7 @@ class GraspFeatureSet:
         self.features += features
         self._measured = None
         self.models += [None] * len(features)
+        self.quality = np.hstack([self.quality, np.zeros((4, len(features)))])
         self.born += [self.grasps] * len(features)
         self.used += [-1] * len(features)
         self.sampled += len(features)
@@ -218,7 +269,7 @@ class GraspFeatureSet:
         if dropped:
             for name in ("features", "models", "born", "used"):
                 setattr(self, name, [getattr(self, name)[j] for j in keep])
-            self.values, self.thetas = self.values[:, keep], self.thetas[:, keep]
+            self.values, self.thetas, self.quality = self.values[:, keep], self.thetas[:, keep], self.quality[:, keep]
             self._measured = None
         return dropped
 
@@ -268,17 +319,24 @@ class GraspLearner:
     ``t_dtheta`` (radians) divides correct from false predictions (6.4.2); ``max_k`` bounds the
     mixtures' components; ``discard_every`` is the discarding period in grasps of a set;
     ``max_distance`` bounds the edgel pairs sampled (pixels, default a quarter image side).
+    ``finger_choice`` is step 2b's rule (module doc). ``mu0_split`` (None: the thesis, which learns
+    from orientation mistakes only) makes a grasp whose E[mu_0] (as step 2b computes it) lies on the
+    other side of the split than its measured mu_0 a mistake too (module doc, "quality mistakes").
     Every random choice comes from ``seed``.
     """
 
     def __init__(self, t_dtheta: float = math.radians(10), max_k: int = 4, min_points: int = 3,
                  discard_every: int = 40, max_distance: float | None = None, seed: int = 0,
-                 finger_choice: str = "thesis"):
+                 finger_choice: str = "thesis", mu0_split: float | None = None):
         if not 0 < t_dtheta < math.pi:
             raise InputError(f"t_dtheta must lie in (0, pi) radians, got {t_dtheta}")
         if finger_choice not in FINGER_CHOICES:
             raise InputError(f"finger_choice {finger_choice!r}: expected one of {', '.join(FINGER_CHOICES)}")
-        self.finger_choice = finger_choice
+        if mu0_split is not None and not 0 < mu0_split < MU0_CAP:
+            raise InputError(f"mu0_split must lie in (0, {MU0_CAP}), got {mu0_split}")
+        if finger_choice == "quality" and mu0_split is None:
+            raise InputError("finger_choice 'quality' needs mu0_split, the mu_0 that divides good from poor grasps")
+        self.finger_choice, self.mu0_split = finger_choice, mu0_split
         if max_k < 1 or min_points < 1 or discard_every < 1:
             raise InputError("max_k, min_points and discard_every must be at least 1")
         self.t_dtheta, self.max_k, self.min_points = t_dtheta, max_k, min_points
@@ -310,8 +368,7 @@ class GraspLearner:
         for c, feature_set in self.sets.items():
             values, thetas = feature_set.measure(records)
             chosen = feature_set.choose(values)
-            expected = (feature_set.pooled_mu0(values) if self.finger_choice == "pooled"
-                        else feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(records)))
+            expected = self._expected(feature_set, values, chosen)
             for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):
                 if best[i] is None or expected[i] < best[i].expected_mu0:
                     j, model = int(chosen[i]), feature_set.models[chosen[i]]
@@ -331,10 +388,25 @@ class GraspLearner:
         if prediction is None:
             return None
         j, theta_h = prediction
-        if use:
+        if use:  # f*_c, and the feature whose quality split gave E[mu_0] (else it would be discarded)
             feature_set.used[j] = feature_set.grasps
+            behind = feature_set.quality_mu0(values[None, :])[1][0] if self.finger_choice == "quality" else -1
+            if behind >= 0:
+                feature_set.used[behind] = feature_set.grasps
         model = feature_set.models[j]
-        return Recommendation(c, theta_h, feature_set.features[j], model.ksd, model.expected_mu0)
+        expected = self._expected(feature_set, values[None, :], np.array([j]))[0]
+        return Recommendation(c, theta_h, feature_set.features[j], model.ksd, float(expected))
+
+    def _expected(self, feature_set: GraspFeatureSet, values: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+        """Step 2b's E[mu_0] for each image (B, F) whose f*_c is ``chosen`` (B,), by ``finger_choice``
+        ("quality" falls back on "pooled" where no quality split is measured)."""
+        if self.finger_choice == "thesis":
+            return feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(values))
+        pooled = feature_set.pooled_mu0(values)
+        if self.finger_choice == "pooled":
+            return pooled
+        quality = feature_set.quality_mu0(values)[0]
+        return np.where(np.isfinite(quality), quality, pooled)
 
     def learn(self, image, records: ImageRecords, experience: Experience) -> str:
         """Steps 5-10 after a grasp with ``experience.fingers`` fingers of the image ``records``
@@ -352,7 +424,11 @@ class GraspLearner:
         return outcome
 
     def _correct(self, recommendation: Recommendation | None, experience: Experience) -> bool:
+        """Steps 6 and 9: the orientation within t_dtheta (and, with ``mu0_split``, E[mu_0] on the side of it
+        that the grasp's mu_0 fell)."""
         if recommendation is None:
+            return False
+        if self.mu0_split is not None and (recommendation.expected_mu0 > self.mu0_split) != (experience.mu0 > self.mu0_split):
             return False
         return bool(angular_error(recommendation.theta_h, experience.theta_H, experience.period) < self.t_dtheta)
 
@@ -360,6 +436,8 @@ class GraspLearner:
         if self._correct(before, experience):
             return "correct"
         feature_set.fit(self.t_dtheta, self.max_k, self.min_points)
+        if self.finger_choice == "quality":
+            feature_set.fit_quality(self.mu0_split, self.min_points)
         if self._correct(self._predict(feature_set.fingers, values, thetas, use=True), experience):
             return "refit"
         new = [random_edgel_pair(records, 0, self.generator, self.max_distance)]

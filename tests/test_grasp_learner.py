@@ -47,7 +47,7 @@ def _synthetic_set(rng, n=60):
     of noise); weakly (0.2-0.5) to the rest, where theta_H is random. Feature 1 responds at random."""
     s = GraspFeatureSet(2)
     s.features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
-    s.models, s.born, s.used = [None, None], [0, 0], [-1, -1]
+    s.models, s.born, s.used, s.quality = [None, None], [0, 0], [-1, -1], np.zeros((4, 2))
     first = np.arange(n) < n // 2
     s.thetas = rng.uniform(-math.pi, math.pi, (n, 2))
     s.theta_H = np.where(first, s.thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n), rng.uniform(-math.pi, math.pi, n))
@@ -234,7 +234,7 @@ def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_objec
     E[mu_0] sent the square to three fingers. Pooling the present features by support must not."""
     mix = fit_mixture(np.array([0.1, 0.12, 0.11]))
     model = lambda ksd, support, expected: FeatureModel(ksd, 0.5, mix, 0.0, expected, support)  # noqa: E731
-    learner = {choice: GraspLearner(finger_choice=choice) for choice in FINGER_CHOICES}
+    learner = {choice: GraspLearner(finger_choice=choice) for choice in ("thesis", "pooled")}
     for chooser in learner.values():
         two, three = chooser.sets[2], chooser.sets[3]
         two.features = [Texel([1.0] + [0.0] * 14), Texel([0.0, 1.0] + [0.0] * 13)]
@@ -252,3 +252,68 @@ def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_objec
     assert pooled.feature == learner["pooled"].sets[2].features[0]  # the largest KSD
     with pytest.raises(InputError, match="finger_choice"):
         GraspLearner(finger_choice="vote")
+
+
+def _two_kind_set(rng, fingers, n=40):
+    """Seed 102's failure (ftorch/grasp.py, "quality"): every feature fires on both object kinds. Half the
+    instances are squares, half triangles; feature 0 predicts the hand orientation on both (offset 0.5)
+    and is present on both (values 0.6-1), but responds more to squares (0.85-1) than to triangles
+    (0.6-0.75); feature 1 responds at random. With two fingers squares are good grasps (mu_0 ~ .02),
+    triangles poor (~ .5); with three the reverse."""
+    s = GraspFeatureSet(fingers)
+    s.features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
+    s.models, s.born, s.used, s.quality = [None, None], [0, 0], [-1, -1], np.zeros((4, 2))
+    square = np.arange(n) < n // 2
+    s.thetas = rng.uniform(-math.pi, math.pi, (n, 2))
+    s.theta_H = s.thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n)
+    s.values = np.stack([np.where(square, rng.uniform(0.85, 1.0, n), rng.uniform(0.6, 0.75, n)), rng.uniform(0, 1, n)], 1)
+    good = square if fingers == 2 else ~square
+    s.mu0 = np.where(good, rng.uniform(0.01, 0.04, n), rng.uniform(0.45, 0.57, n))
+    s.period = np.full(n, 2 * math.pi)
+    s.images = list(range(n))
+    return s
+
+
+def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds():
+    rng = np.random.default_rng(4)
+    learner = {choice: GraspLearner(finger_choice=choice, mu0_split=0.4) for choice in FINGER_CHOICES}
+    for chooser in learner.values():
+        for c in (2, 3):
+            s = chooser.sets[c] = _two_kind_set(rng, c)
+            s.fit(math.radians(10), 4, 3)
+            s.fit_quality(0.4, 3)
+    square, triangle = np.array([[0.92, 0.5]]), np.array([[0.66, 0.5]])
+    s = learner["pooled"].sets[2]
+    assert s.models[0] is not None and s.models[0].alpha < 0.6  # present on both kinds
+    assert 0.2 < s.pooled_mu0(triangle)[0] < 0.4  # pooled: a triangle looks like a good two-finger grasp
+    assert s.quality[0, 0] == 1.0 and 0.75 < s.quality[1, 0] < 0.85  # the split between the kinds
+    assert s.quality_mu0(triangle)[0][0] > 0.4 and s.quality_mu0(square)[0][0] < 0.1 and s.quality_mu0(square)[1][0] == 0
+    for kind, values, fingers in (("square", square, 2), ("triangle", triangle, 3)):
+        for chooser in learner.values():
+            for s in chooser.sets.values():
+                s.measure = lambda records, values=values: (values, np.zeros_like(values))
+        assert learner["quality"].recommend([None]).fingers == fingers, kind
+    pooled = {c: learner["pooled"].sets[c].pooled_mu0(triangle)[0] for c in (2, 3)}
+    assert abs(pooled[2] - pooled[3]) < 0.05  # the failure: pooled, both sets expect the same, a coin flip
+    with pytest.raises(InputError, match="needs mu0_split"):
+        GraspLearner(finger_choice="quality")
+
+
+def test_a_quality_mistake_is_learned_from():
+    """With ``mu0_split``, a grasp whose orientation was right but whose E[mu_0] lay on the wrong side is
+    a mistake (steps 6-10); without it (the thesis), it is not."""
+    rng = np.random.default_rng(5)
+    records = FeatureSpace().records([torch.from_numpy(np.random.default_rng(0).uniform(0, 1, (64, 64)).astype(np.float32))])
+    outcome = {}
+    for split in (None, 0.4):
+        learner = GraspLearner(finger_choice="pooled", mu0_split=split)
+        s = learner.sets[2] = _two_kind_set(rng, 2)
+        s.fit(math.radians(10), 4, 3)
+        s.measure = lambda records: (np.array([[0.66, 0.5]]), np.array([[0.1, 0.2]]))
+        s.add_instance = lambda *args: None
+        s.add_features = lambda new: None
+        cue = learner.recommend(records, 2)
+        assert cue.expected_mu0 < 0.4  # predicted good ...
+        experience = Experience(2, cue.theta_h, 0.55, 2 * math.pi)  # ... right orientation, poor grasp
+        outcome[split] = learner.learn("triangle", records, experience)
+    assert outcome[None] == "correct" and outcome[0.4] == "sampled"

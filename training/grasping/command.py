@@ -19,7 +19,7 @@ from training.outputs import run_folder
 from training.parallel import TasksFailed, run_tasks
 from training.report import write_json
 
-from .experiment import EXPERIMENTS, GraspFold, simulate_pool
+from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
 from .haptics import HapticController
 from .figures import error_figure, grasp_figure, reduction_figure
 from .report import UNPREDICTED_DEG, grasp_columns, results, seed_study, write_markdown
@@ -36,14 +36,27 @@ def _check(args) -> None:
         raise InputError(f"--size {args.size}: expected at least 32 pixels")
     if not 0 < args.t_dtheta < 180:
         raise InputError(f"--t-dtheta {args.t_dtheta}: expected degrees in (0, 180)")
+    if not 0 < args.mu0_split < MU0_CAP:
+        raise InputError(f"--mu0-split {args.mu0_split}: expected a friction coefficient in (0, {MU0_CAP})")
     if args.folds not in (1, 2):
         raise InputError(f"--folds {args.folds}: expected 1 or 2")
+
+
+def _split(args) -> float | None:
+    """The learner's mu0_split: only the quality choice uses one (thesis and pooled are as they were)."""
+    return args.mu0_split if args.finger_choice == "quality" else None
+
+
+def _quality(split: np.ndarray) -> dict | None:
+    """A feature's quality split for the report (ftorch/grasp.py), None where it has none."""
+    power, cut, above, below = (float(v) for v in split)
+    return {"ksd": power, "cut": cut, "mu0_above": above, "mu0_below": below} if power > 0 else None
 
 
 def config(args, device) -> dict:
     return {"experiment": args.experiment, "seed": args.seed, "pool": args.pool, "best": args.best, "epochs": args.epochs,
             "size": args.size, "t_dtheta_deg": args.t_dtheta, "folds": args.folds, "online": args.online,
-            "finger_choice": args.finger_choice,
+            "finger_choice": args.finger_choice, "mu0_split": _split(args),
             "device": str(device)}
 
 
@@ -112,7 +125,8 @@ def seed_task(job: dict) -> dict:
     folds, figures = [], []
     for k in range(1, args.folds + 1):
         for mode in modes:
-            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k, finger_choice=args.finger_choice)
+            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k, finger_choice=args.finger_choice,
+                                   mu0_split=_split(args))
             fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
             fold.fit(args.epochs, online=mode == "online")
             evaluation = fold.evaluate()
@@ -127,8 +141,10 @@ def seed_task(job: dict) -> dict:
             save_rgb(out / f"{name}_features.png", pictures["features"])
             figures.append(f"{name}_features.png")
             folds.append({"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
-                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None)
-                                                for f, m in zip(s.features, s.models)] for c, s in learner.sets.items()}})
+                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None,
+                                                     quality=_quality(q) if args.finger_choice == "quality" else None)
+                                                for f, m, q in zip(s.features, s.models, s.quality.T)]
+                                       for c, s in learner.sets.items()}})
             last = fold.epochs[-1]
             if not args.quiet:
                 print(f"seed {seed} fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} "
@@ -188,8 +204,10 @@ def grasp_command(args) -> int:
               f"{on['poor_grasp_fraction']['cued']:.2f}")
     if args.seeds > 1:
         for mode, study in report["seeds"]["reduction"].items():
+            cued, error = report["seeds"]["poor_cued"][mode], report["seeds"]["error_median_deg"][mode]
             print(f"{args.seeds} seeds, {mode}: poor-grasp reduction mean {study['mean']:.0%} +- {study['sd']:.0%}, "
-                  f"worst {study['worst']:.0%} (seed {study['worst_seed']})")
+                  f"worst {study['worst']:.0%} (seed {study['worst_seed']}); poor cued mean {cued['mean']:.2f}; "
+                  f"median orientation error worst {error['worst']:.1f} deg (seed {error['worst_seed']})")
     print(f"{time.perf_counter() - start:.1f} s; report: {out / 'report.md'} and {out / 'report.json'}; "
           f"TensorBoard: tensorboard --logdir {logdir}")
     return 0
@@ -205,9 +223,13 @@ def add_parser(commands) -> None:
     p.add_argument("--best", type=at_least(1, "a number of grasps", 100000), default=20, help="training grasps per category and fold (default 20)")
     p.add_argument("--epochs", type=at_least(1, "a number of passes", 1000), default=10, help="passes over the training grasps (default 10)")
     p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
-    p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="pooled",
-                   help="alg. 6.2 step 2b: pooled (default): E[mu_0] over every present feature, weighted by its "
-                        "support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp.py)")
+    p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="quality",
+                   help="alg. 6.2 step 2b: quality (default): per set, the mean mu_0 on the image's side of the best "
+                        "quality split, and quality mistakes learned from; pooled: E[mu_0] over every present feature, "
+                        "weighted by its support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp.py)")
+    p.add_argument("--mu0-split", type=number, default=POOR_MU0,
+                   help=f"for --finger-choice quality: the mu_0 dividing good from poor grasps (default {POOR_MU0}, "
+                        "the protocol's split between the two modes of figure 6.17)")
     p.add_argument("--size", type=at_least(1, "an image side in pixels", 1024), default=64, help="camera image side in pixels (default 64)")
     p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "

@@ -51,15 +51,16 @@ def results(evaluations: list[dict]) -> dict:
     }
 
 
-def _spread(values: list[float], seeds: list[int]) -> dict:
-    worst = int(np.argmin(values))
+def _spread(values: list[float], seeds: list[int], worse_is_lower: bool = True) -> dict:
+    worst = int(np.argmin(values) if worse_is_lower else np.argmax(values))
     return {"mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
             "worst": float(values[worst]), "worst_seed": seeds[worst]}
 
 
 def seed_study(reports: list[dict]) -> dict:
-    """The ``seeds`` block: one entry per seed's report, and the poor-grasp reductions' mean, sd and
-    worst seed, off-line (and on-line where run)."""
+    """The ``seeds`` block: one entry per seed's report; the mean, sd and worst seed of the poor-grasp
+    reductions, of the cued poor-grasp fractions and of the median orientation errors, off-line (and
+    on-line where run)."""
     runs = []
     for r in reports:
         entry = {"seed": r["config"]["seed"], "poor_grasp_fraction": {k: r["poor_grasp_fraction"][k] for k in
@@ -72,10 +73,14 @@ def seed_study(reports: list[dict]) -> dict:
                                "orientation_error_deg": online["orientation_error_deg"]}
         runs.append(entry)
     seeds = [e["seed"] for e in runs]
-    reduction = {"offline": _spread([e["poor_grasp_fraction"]["reduction"] or 0.0 for e in runs], seeds)}
+    modes = {"offline": runs}
     if all("online" in e for e in runs):
-        reduction["online"] = _spread([e["online"]["poor_grasp_fraction"]["reduction"] or 0.0 for e in runs], seeds)
-    return {"runs": runs, "reduction": reduction}
+        modes["online"] = [e["online"] for e in runs]
+    return {"runs": runs,
+            "reduction": {m: _spread([e["poor_grasp_fraction"]["reduction"] or 0.0 for e in es], seeds) for m, es in modes.items()},
+            "poor_cued": {m: _spread([e["poor_grasp_fraction"]["cued"] for e in es], seeds, False) for m, es in modes.items()},
+            "error_median_deg": {m: _spread([e["orientation_error_deg"]["median"] for e in es], seeds, False)
+                                 for m, es in modes.items()}}
 
 
 def grasp_columns(evaluations: list[dict], experiment: str) -> dict[str, list[dict]]:
@@ -158,6 +163,9 @@ def _seed_table(study: dict) -> list[str]:
         lines.append(row)
     lines.append("")
     for mode, r in study["reduction"].items():
-        lines.append(f"Poor-grasp reduction, {mode}: mean {r['mean']:.0%}, sd {r['sd']:.0%}, worst {r['worst']:.0%} "
-                     f"(seed {r['worst_seed']}).")
+        cued, error = study["poor_cued"][mode], study["error_median_deg"][mode]
+        lines.append(f"{mode}: poor-grasp reduction mean {r['mean']:.0%}, sd {r['sd']:.0%}, worst {r['worst']:.0%} "
+                     f"(seed {r['worst_seed']}); poor cued mean {cued['mean']:.2f}, worst {cued['worst']:.2f} (seed "
+                     f"{cued['worst_seed']}); median orientation error mean {error['mean']:.1f} deg, worst "
+                     f"{error['worst']:.1f} deg (seed {error['worst_seed']}).")
     return lines
