@@ -166,20 +166,26 @@ class GraspFeatureSet:
                  for m in self.models]
         return np.array(table, dtype=float).reshape(len(self.models), 4).T
 
-    def choose(self, values: np.ndarray) -> np.ndarray:
-        """Step 2b for each image (B, F) -> (B,): the present feature (value > alpha_f) of largest KSD_f
-        (the first where tied), -1 where none is."""
-        alpha, power = self._model_arrays()[:2]
-        score = np.where((values > alpha) & (power > 0), power, 0.0)
+    def present(self, values: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+        """(B, F): the feature has a model, was located in the image (a finite orientation; a feature
+        that finds no point has value 0, which a perfect feature's alpha_f = -inf would let pass) and
+        its value exceeds alpha_f."""
+        return (values > self._model_arrays()[0]) & np.isfinite(thetas)
+
+    def choose(self, values: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+        """Step 2b for each image (B, F) -> (B,): the present feature of largest KSD_f (the first where
+        tied), -1 where none is."""
+        power = self._model_arrays()[1]
+        score = np.where(self.present(values, thetas) & (power > 0), power, 0.0)
         if not score.shape[1]:
             return np.full(len(values), -1)
         return np.where(score.max(1) > 0, score.argmax(1), -1)
 
-    def pooled_mu0(self, values: np.ndarray) -> np.ndarray:
+    def pooled_mu0(self, values: np.ndarray, thetas: np.ndarray) -> np.ndarray:
         """E[mu_0] of a grasp with this set's fingers given each image's measurements (B, F) -> (B,): eq.
         6.8 of every present feature, weighted by its support (module doc, "pooled"); NaN without one."""
-        alpha, _, expected, support = self._model_arrays()
-        weight = np.where(values > alpha, support, 0.0)
+        _, _, expected, support = self._model_arrays()
+        weight = np.where(self.present(values, thetas), support, 0.0)
         total = weight.sum(1)
         return np.where(total > 0, (weight * expected).sum(1) / np.where(total > 0, total, 1.0), np.nan)
 
@@ -218,7 +224,7 @@ class GraspFeatureSet:
 
     def predict(self, values: np.ndarray, thetas: np.ndarray) -> tuple[int, float] | None:
         """Steps 2b-4: (f*, theta_h) for one image's measurements (F,), None without a present feature."""
-        j = int(self.choose(values[None, :])[0])
+        j = int(self.choose(values[None, :], thetas[None, :])[0])
         return None if j < 0 else (j, float(thetas[j] + self.models[j].offset))
 
     def add_instance(self, image, records: ImageRecords, values, thetas, experience: Experience) -> None:
@@ -367,8 +373,8 @@ class GraspLearner:
         best: list[Recommendation | None] = [None] * len(records)
         for c, feature_set in self.sets.items():
             values, thetas = feature_set.measure(records)
-            chosen = feature_set.choose(values)
-            expected = self._expected(feature_set, values, chosen)
+            chosen = feature_set.choose(values, thetas)
+            expected = self._expected(feature_set, values, thetas, chosen)
             for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):
                 if best[i] is None or expected[i] < best[i].expected_mu0:
                     j, model = int(chosen[i]), feature_set.models[chosen[i]]
@@ -380,7 +386,7 @@ class GraspLearner:
         """Finger counts whose set has no present feature in this image, hence no estimate of mu_0 for
         step 2b. An on-line learner tries them (the thesis's off-line data never needed to), or a set
         without features would never gain the experience that gives it some."""
-        return [c for c in self._candidates(records, None) if self.sets[c].choose(self.sets[c].measure(records)[0])[0] < 0]
+        return [c for c in self._candidates(records, None) if self.sets[c].choose(*self.sets[c].measure(records))[0] < 0]
 
     def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray, use: bool = False) -> Recommendation | None:
         feature_set = self.sets[c]
@@ -394,15 +400,16 @@ class GraspLearner:
             if behind >= 0:
                 feature_set.used[behind] = feature_set.grasps
         model = feature_set.models[j]
-        expected = self._expected(feature_set, values[None, :], np.array([j]))[0]
+        expected = self._expected(feature_set, values[None, :], thetas[None, :], np.array([j]))[0]
         return Recommendation(c, theta_h, feature_set.features[j], model.ksd, float(expected))
 
-    def _expected(self, feature_set: GraspFeatureSet, values: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    def _expected(self, feature_set: GraspFeatureSet, values: np.ndarray, thetas: np.ndarray, chosen: np.ndarray
+                  ) -> np.ndarray:
         """Step 2b's E[mu_0] for each image (B, F) whose f*_c is ``chosen`` (B,), by ``finger_choice``
         ("quality" falls back on "pooled" where no quality split is measured)."""
         if self.finger_choice == "thesis":
             return feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(values))
-        pooled = feature_set.pooled_mu0(values)
+        pooled = feature_set.pooled_mu0(values, thetas)
         if self.finger_choice == "pooled":
             return pooled
         quality = feature_set.quality_mu0(values)[0]

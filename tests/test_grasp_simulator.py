@@ -23,6 +23,8 @@ def test_two_contacts_closed_form():
     assert min_friction(points, _unit([160, 10])) == pytest.approx(math.tan(math.radians(20)))
     # a normal facing away from the other contact: no equilibrium at any friction
     assert min_friction(points, _unit([180, 180])) == math.inf
+    # both fingertips on one point (seen in the seed-6 study: it gave mu_0 = NaN): no equilibrium
+    assert min_friction(np.array([[1.0, 0.0], [1.0, 0.0]]), _unit([180, 0])) == math.inf
 
 
 def _solved_three(points, normals):

@@ -68,7 +68,10 @@ def min_friction(points: np.ndarray, normals: np.ndarray) -> float:
     inward = -normals
     if len(points) == 2:
         line = points[1] - points[0]
-        line = line / np.linalg.norm(line)
+        length = np.linalg.norm(line)
+        if length < 1e-12:  # both fingertips on one point (slipped to one vertex): no squeezing line
+            return math.inf
+        line = line / length
         cosines = np.array([inward[0] @ line, -(inward[1] @ line)])
         if cosines.min() <= 1e-12:
             return math.inf
