@@ -88,6 +88,14 @@ def decode_array(data: dict) -> np.ndarray:
     return flat.reshape(shape).astype(np.float64)
 
 
+def stored_position(index, size: int) -> int:
+    """A stored reference into a table of ``size`` entries; ValueError unless a valid position (an
+    int, not a bool, and no negative index that Python would wrap around)."""
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < size:
+        raise ValueError(f"reference {index!r} into a table of {size} entries")
+    return index
+
+
 def encode_text(text: str) -> dict:
     """A long text as JSON-ready data: its length in bytes and its compressed UTF-8."""
     raw = text.encode("utf-8")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checkpoint import decode_array, encode_array
+from .checkpoint import decode_array, encode_array, stored_position
 from .errors import InputError
 from .evaluate import feature_values
 from .features import Feature, FeatureTable, unpack_features
@@ -117,9 +117,7 @@ class ImageSet:
         the table it was written against, where the caller kept one)."""
         try:
             known = unpack_features(state["table"]) if features is None else features
-            if any(isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(known) for i in state["features"]):
-                raise ValueError("a feature reference outside the table")
-            features = [known[i] for i in state["features"]]
+            features = [known[stored_position(i, len(known))] for i in state["features"]]
             table = decode_array(state["values"])
         except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
             raise InputError(f"value cache is damaged: {err}") from None

@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from .bayes import ClassNetwork, compound_arcs
-from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
+from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from .environment import ImageSet
 from .errors import InputError
 from .features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, unpack_features
@@ -86,13 +86,6 @@ def _label(value):
     if isinstance(value, bool) or not isinstance(value, (str, int)):
         raise InputError(f"class labels and image ids must be str or int to be saved, got {value!r}")
     return value
-
-
-def _position(index, size: int) -> int:
-    """A stored reference into a table of ``size`` entries; ValueError unless a valid position."""
-    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < size:
-        raise ValueError(f"reference {index!r} into a table of {size} entries")
-    return index
 
 
 def _number(value) -> float:
@@ -474,7 +467,7 @@ class DistinctiveFeatureLearner:
         kept one); ValueError or InputError where it is damaged. A recognition-only state gives a
         learner that recognizes but refuses to learn."""
         features = unpack_features(state["features"]) if features is None else features
-        at = lambda i: features[_position(i, len(features))]  # noqa: E731
+        at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
         self.n_ex, self.n_fgen = _count(state["n_ex"]), _count(state["n_fgen"])
         self.min_information = _number(state["min_information"])
         options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
