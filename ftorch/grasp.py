@@ -172,27 +172,28 @@ class GraspFeatureSet:
         its value exceeds alpha_f."""
         return (values > self._model_arrays()[0]) & np.isfinite(thetas)
 
-    def choose(self, values: np.ndarray, thetas: np.ndarray) -> np.ndarray:
-        """Step 2b for each image (B, F) -> (B,): the present feature of largest KSD_f (the first where
-        tied), -1 where none is."""
+    def choose(self, present: np.ndarray) -> np.ndarray:
+        """Step 2b for each image, from :meth:`present` (B, F) -> (B,): the present feature of largest
+        KSD_f (the first where tied), -1 where none is."""
         power = self._model_arrays()[1]
-        score = np.where(self.present(values, thetas) & (power > 0), power, 0.0)
+        score = np.where(present & (power > 0), power, 0.0)
         if not score.shape[1]:
-            return np.full(len(values), -1)
+            return np.full(len(present), -1)
         return np.where(score.max(1) > 0, score.argmax(1), -1)
 
-    def pooled_mu0(self, values: np.ndarray, thetas: np.ndarray) -> np.ndarray:
-        """E[mu_0] of a grasp with this set's fingers given each image's measurements (B, F) -> (B,): eq.
-        6.8 of every present feature, weighted by its support (module doc, "pooled"); NaN without one."""
+    def pooled_mu0(self, present: np.ndarray) -> np.ndarray:
+        """E[mu_0] of a grasp with this set's fingers given each image's :meth:`present` (B, F) -> (B,):
+        eq. 6.8 of every present feature, weighted by its support (module doc, "pooled"); NaN without one."""
         _, _, expected, support = self._model_arrays()
-        weight = np.where(self.present(values, thetas), support, 0.0)
+        weight = np.where(present, support, 0.0)
         total = weight.sum(1)
         return np.where(total > 0, (weight * expected).sum(1) / np.where(total > 0, total, 1.0), np.nan)
 
     def quality_mu0(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """E[mu_0] given each image's measurements (B, F) -> (B,) by the set's best quality split (module
         doc, "quality"): the mean mu_0 of the instances on the image's side of the cut-point of the
-        measured feature of largest quality KSD; NaN where none has one. Also that feature (B,), -1 there."""
+        measured feature of largest quality KSD; NaN where none has one. Also that feature (B,), -1 there.
+        A feature that finds no point has value 0: its absence lies below every cut-point."""
         power, cut, above, below = self.quality
         score = np.where(np.isfinite(values) & (power > 0), power, 0.0)
         if not score.shape[1]:
@@ -221,11 +222,6 @@ class GraspFeatureSet:
         mean = np.stack([(side * self.mu0[:, None]).sum(0) for side in (high, low)]) / np.maximum(count, 1)
         enough = (count >= min_points).all(0) & np.isfinite(cut)
         self.quality = np.stack([np.where(enough, distance, 0.0), cut, *mean])
-
-    def predict(self, values: np.ndarray, thetas: np.ndarray) -> tuple[int, float] | None:
-        """Steps 2b-4: (f*, theta_h) for one image's measurements (F,), None without a present feature."""
-        j = int(self.choose(values[None, :], thetas[None, :])[0])
-        return None if j < 0 else (j, float(thetas[j] + self.models[j].offset))
 
     def add_instance(self, image, records: ImageRecords, values, thetas, experience: Experience) -> None:
         """Step 5: one row of the instance list per distinct ``image`` (presenting an image again with
@@ -373,47 +369,52 @@ class GraspLearner:
         best: list[Recommendation | None] = [None] * len(records)
         for c, feature_set in self.sets.items():
             values, thetas = feature_set.measure(records)
-            chosen = feature_set.choose(values, thetas)
-            expected = self._expected(feature_set, values, thetas, chosen)
+            chosen, _, expected = self._step_2b(feature_set, values, thetas)
             for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):
                 if best[i] is None or expected[i] < best[i].expected_mu0:
-                    j, model = int(chosen[i]), feature_set.models[chosen[i]]
-                    best[i] = Recommendation(c, float(thetas[i, j] + model.offset), feature_set.features[j], model.ksd,
-                                             float(expected[i]))
+                    best[i] = self._cue(c, i, int(chosen[i]), thetas, expected)
         return best
 
     def untried(self, records: ImageRecords) -> list[int]:
         """Finger counts whose set has no present feature in this image, hence no estimate of mu_0 for
         step 2b. An on-line learner tries them (the thesis's off-line data never needed to), or a set
         without features would never gain the experience that gives it some."""
-        return [c for c in self._candidates(records, None) if self.sets[c].choose(*self.sets[c].measure(records))[0] < 0]
+        return [c for c in self._candidates(records, None)
+                if self._predict(c, *(a[0] for a in self.sets[c].measure(records))) is None]
 
     def _predict(self, c: int, values: np.ndarray, thetas: np.ndarray, use: bool = False) -> Recommendation | None:
+        """Steps 2b-4 with set c on one image's measurements (F,); ``use`` counts the features used."""
         feature_set = self.sets[c]
-        prediction = feature_set.predict(values, thetas)
-        if prediction is None:
+        chosen, behind, expected = self._step_2b(feature_set, values[None, :], thetas[None, :])
+        j = int(chosen[0])
+        if j < 0:
             return None
-        j, theta_h = prediction
         if use:  # f*_c, and the feature whose quality split gave E[mu_0] (else it would be discarded)
             feature_set.used[j] = feature_set.grasps
-            behind = feature_set.quality_mu0(values[None, :])[1][0] if self.finger_choice == "quality" else -1
-            if behind >= 0:
-                feature_set.used[behind] = feature_set.grasps
-        model = feature_set.models[j]
-        expected = self._expected(feature_set, values[None, :], thetas[None, :], np.array([j]))[0]
-        return Recommendation(c, theta_h, feature_set.features[j], model.ksd, float(expected))
+            if behind[0] >= 0:
+                feature_set.used[behind[0]] = feature_set.grasps
+        return self._cue(c, 0, j, thetas[None, :], expected)
 
-    def _expected(self, feature_set: GraspFeatureSet, values: np.ndarray, thetas: np.ndarray, chosen: np.ndarray
-                  ) -> np.ndarray:
-        """Step 2b's E[mu_0] for each image (B, F) whose f*_c is ``chosen`` (B,), by ``finger_choice``
-        ("quality" falls back on "pooled" where no quality split is measured)."""
+    def _step_2b(self, feature_set: GraspFeatureSet, values: np.ndarray, thetas: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Step 2b on each image's measurements (B, F) by one set: f*_c (B,; -1 where none is present),
+        the feature whose quality split gave E[mu_0] (B,; -1 where none did) and E[mu_0] (B,), by
+        ``finger_choice`` ("quality" falls back on "pooled" where no quality split is measured)."""
+        present = feature_set.present(values, thetas)
+        chosen, behind = feature_set.choose(present), np.full(len(values), -1)
         if self.finger_choice == "thesis":
-            return feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(values))
-        pooled = feature_set.pooled_mu0(values, thetas)
-        if self.finger_choice == "pooled":
-            return pooled
-        quality = feature_set.quality_mu0(values)[0]
-        return np.where(np.isfinite(quality), quality, pooled)
+            expected = feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(values))
+        else:
+            expected = feature_set.pooled_mu0(present)
+            if self.finger_choice == "quality":
+                quality, behind = feature_set.quality_mu0(values)
+                expected = np.where(np.isfinite(quality), quality, expected)
+        return chosen, behind, expected
+
+    def _cue(self, c: int, i: int, j: int, thetas: np.ndarray, expected: np.ndarray) -> Recommendation:
+        """Steps 3-4 for image i of a batch (B, F) whose f*_c is feature j of set c."""
+        model = self.sets[c].models[j]
+        return Recommendation(c, float(thetas[i, j] + model.offset), self.sets[c].features[j], model.ksd, float(expected[i]))
 
     def learn(self, image, records: ImageRecords, experience: Experience) -> str:
         """Steps 5-10 after a grasp with ``experience.fingers`` fingers of the image ``records``

@@ -285,7 +285,7 @@ def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds()
     square, triangle = np.array([[0.92, 0.5]]), np.array([[0.66, 0.5]])
     s = learner["pooled"].sets[2]
     assert s.models[0] is not None and s.models[0].alpha < 0.6  # present on both kinds
-    assert 0.2 < s.pooled_mu0(triangle, np.zeros_like(triangle))[0] < 0.4  # pooled: a triangle looks like a good two-finger grasp
+    assert 0.2 < s.pooled_mu0(s.present(triangle, np.zeros_like(triangle)))[0] < 0.4  # pooled: a triangle looks like a good two-finger grasp
     assert s.quality[0, 0] == 1.0 and 0.75 < s.quality[1, 0] < 0.85  # the split between the kinds
     assert s.quality_mu0(triangle)[0][0] > 0.4 and s.quality_mu0(square)[0][0] < 0.1 and s.quality_mu0(square)[1][0] == 0
     for kind, values, fingers in (("square", square, 2), ("triangle", triangle, 3)):
@@ -293,7 +293,7 @@ def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds()
             for s in chooser.sets.values():
                 s.measure = lambda records, values=values: (values, np.zeros_like(values))
         assert learner["quality"].recommend([None]).fingers == fingers, kind
-    pooled = {c: learner["pooled"].sets[c].pooled_mu0(triangle, np.zeros_like(triangle))[0] for c in (2, 3)}
+    pooled = {c: s.pooled_mu0(s.present(triangle, np.zeros_like(triangle)))[0] for c, s in learner["pooled"].sets.items()}
     assert abs(pooled[2] - pooled[3]) < 0.05  # the failure: pooled, both sets expect the same, a coin flip
     with pytest.raises(InputError, match="needs mu0_split"):
         GraspLearner(finger_choice="quality")

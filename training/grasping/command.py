@@ -141,8 +141,7 @@ def seed_task(job: dict) -> dict:
             save_rgb(out / f"{name}_features.png", pictures["features"])
             figures.append(f"{name}_features.png")
             folds.append({"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
-                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None,
-                                                     quality=_quality(q) if args.finger_choice == "quality" else None)
+                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None, quality=_quality(q))
                                                 for f, m, q in zip(s.features, s.models, s.quality.T)]
                                        for c, s in learner.sets.items()}})
             last = fold.epochs[-1]
