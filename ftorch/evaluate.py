@@ -57,8 +57,8 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
     kinds = tuple(p.kind for p in features[0].parts)
     vectors = [torch.tensor([f.parts[i].vector for f in features], device=device, dtype=dtype) for i in range(len(kinds))]
     params = torch.tensor([[[p.phi, p.dtheta, p.d, p.dsigma] for p in f.parts] for f in features], device=device, dtype=dtype)
-    reference = _ReferencePoints(records, kinds[0])
-    n_images, n_points = reference.mask.shape
+    reference = _ReferencePoints.of(records, kinds[0])
+    n_images, n_points = reference.padded
     if n_points == 0:
         zeros = torch.zeros(len(features), n_images, device=device, dtype=dtype)
         nan = torch.full_like(zeros, math.nan)
@@ -70,51 +70,61 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
 
 
 class _ReferencePoints:
-    """The salient points of one kind (edgels or texels), packed to the left: (N, P_kind), with
-    their canonical vectors (the first-order pair for edgels, all 15 numbers for texels)."""
+    """The salient points of one kind (edgels or texels) in a batch of records as one list (K,),
+    image by image: each point's image and slot (its rank among that image's points of the kind),
+    x, y, sigma, theta and canonical vector (the first-order pair for edgels, all 15 numbers for
+    texels). Per-image maxima are taken in the padded layout ``padded`` = (N, P_kind)."""
 
     def __init__(self, records: ImageRecords, kind: str):
         applicable = records.edgel_mask() if kind == "edgel" else records.texel_mask()
-        width = int(applicable.sum(1).max()) if applicable.numel() else 0
-        order = torch.argsort((~applicable).to(torch.int8), dim=1, stable=True)[:, :width]
-        self.mask = applicable.gather(1, order)
-        self.x, self.y = records.x.gather(1, order), records.y.gather(1, order)
-        self.sigma, self.theta = records.sigma.gather(1, order), records.theta.gather(1, order)
+        image, point = applicable.nonzero(as_tuple=True)
+        rank = applicable.cumsum(1) - 1
+        self.image, self.slot = image, rank[image, point]
+        self.padded = (len(records), int(rank.max()) + 1 if len(image) else 0)
+        self.x, self.y = records.x[image, point], records.y[image, point]
+        self.sigma, self.theta = records.sigma[image, point], records.theta[image, point]
         canonical = records.canonical[..., EDGEL_SLOTS] if kind == "edgel" else records.canonical
-        self.canonical = canonical.gather(1, order[..., None].expand(-1, -1, canonical.shape[-1]))
+        self.canonical = canonical[image, point]
+
+    @staticmethod
+    def of(records: ImageRecords, kind: str) -> "_ReferencePoints":
+        """The points of ``kind`` in ``records``, found once per records object."""
+        known = records.__dict__.setdefault("_reference_points", {})
+        if kind not in known:
+            known[kind] = _ReferencePoints(records, kind)
+        return known[kind]
+
+    def located(self, field: Tensor, best: Tensor, where: Tensor) -> Tensor:
+        """``field`` (K,) of the point at slot ``where`` (F, N) of each image; NaN where ``best`` < 0."""
+        padded = field.new_full(self.padded, math.nan)
+        padded[self.image, self.slot] = field
+        at = padded.expand(len(where), -1, -1).gather(-1, where[..., None])[..., 0]
+        return torch.where(best >= 0, at, math.nan)
 
 
 def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], records: ImageRecords,
                  reference: _ReferencePoints) -> FeatureValues:
-    n_feat = params.shape[0]
-    n_images, n_points = reference.mask.shape
-    shape = (n_feat, n_images, n_points)
-    numerator = torch.einsum("fd,npd->fnp", vectors[0], reference.canonical)
-    observed = (reference.canonical**2).sum(-1).expand(shape)
-    valid = reference.mask.expand(shape)
-    # padding points are placed nowhere, so no later part of theirs is sampled
-    x = torch.where(reference.mask, reference.x, math.nan).expand(shape)
-    y, theta, sigma = reference.y.expand(shape), reference.theta.expand(shape), reference.sigma.expand(shape)
-    image = torch.arange(n_images, device=records.device)[None, :, None].expand(shape).reshape(-1)
+    """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14)."""
+    numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
+    observed = (reference.canonical**2).sum(-1).expand_as(numerator)
+    valid = None
+    x, y, sigma, theta = reference.x, reference.y, reference.sigma, reference.theta
     for i in range(1, len(kinds)):
-        x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None, None] for j in range(4)))
+        x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None] for j in range(4)))
         edgel = kinds[i] == "edgel"
-        sample, ok = sample_part(records, image, x.reshape(-1), y.reshape(-1), sigma.reshape(-1), edgel)
-        sample = (rotate_pair(sample, theta.reshape(-1)) if edgel else steer(sample, theta.reshape(-1))).view(*shape, -1)
-        numerator = numerator + torch.einsum("fnpd,fd->fnp", sample, vectors[i])
+        sample, ok = sample_part(records, reference.image, x, y, sigma, edgel)
+        sample = rotate_pair(sample, theta) if edgel else steer(sample, theta)
+        numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
-        valid = valid & ok.view(shape)
-    pattern = sum((v**2).sum(1) for v in vectors)[:, None, None]
+        valid = ok if valid is None else valid & ok
+    pattern = sum((v**2).sum(1) for v in vectors)[:, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
-    cosine = torch.where(valid, cosine.clamp_min(0), torch.full_like(cosine, -1.0))
-    best, where = cosine.max(-1)
-    found = best >= 0
-    nan = torch.full_like(best, math.nan)
-
-    def at(field: Tensor) -> Tensor:
-        return torch.where(found, field.expand(shape).gather(-1, where[..., None])[..., 0], nan)
-
-    return FeatureValues(best.clamp_min(0), at(reference.x), at(reference.y), at(reference.sigma), at(reference.theta))
+    cosine = cosine.clamp_min(0) if valid is None else torch.where(valid, cosine.clamp_min(0), -1.0)
+    padded = cosine.new_full((len(params), *reference.padded), -1.0)
+    padded[:, reference.image, reference.slot] = cosine
+    best, where = padded.max(-1)
+    return FeatureValues(best.clamp_min(0), *(reference.located(field, best, where) for field in
+                                              (reference.x, reference.y, reference.sigma, reference.theta)))
 
 
 @torch.no_grad()

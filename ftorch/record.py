@@ -38,24 +38,48 @@ def kind_slots(kind: Tensor) -> Tensor:
 class Pyramid:
     """The response pyramids of a batch of images, stored once in the layout sampling reads.
 
-    ``table`` (N, H, W, S+3, 5) holds at [n, y, x, j] the five basis responses of level j-1
-    (zero outside the pyramid), so the levels around any pixel and level are one contiguous run
-    that sampling reads as a row (``ftorch.sampling``). Record batches selected from one another
-    share their :class:`Pyramid` (no copies).
+    ``first`` (N, H, W, S+3, 2) and ``second`` (N, H, W, S+3, 3) hold at [n, y, x, j] the first-
+    and second-order basis responses of level j-1 (zero outside the pyramid), so the levels around
+    any pixel and level are one contiguous run of each that sampling reads as a row
+    (``ftorch.sampling``): an edgel reads 4 numbers of ``first``, a texel 8 and 12. Record batches
+    selected from one another share their :class:`Pyramid` (no copies).
     """
 
-    def __init__(self, responses: Tensor):
-        self.table = torch.nn.functional.pad(responses.permute(0, 3, 4, 1, 2), (0, 0, 1, 2)).contiguous()
+    def __init__(self, first: Tensor, second: Tensor):
+        self.first, self.second = first, second
+
+    @classmethod
+    def of(cls, responses: Tensor) -> "Pyramid":
+        """The pyramid of responses (N, S, 5, H, W)."""
+        batch, levels, _, height, width = responses.shape
+
+        def table(order: slice) -> Tensor:
+            part = responses[:, :, order]
+            out = part.new_zeros(batch, height, width, levels + 3, part.shape[2])
+            out[:, :, :, 1:-2] = part.permute(0, 3, 4, 1, 2)
+            return out
+
+        return cls(table(slice(0, 2)), table(slice(2, 5)))
+
+    def __len__(self) -> int:
+        return self.first.shape[0]
 
     @property
     def responses(self) -> Tensor:
-        """(N, S, 5, H, W), a view of the table."""
-        return self.table[:, :, :, 1:-2].permute(0, 3, 4, 1, 2)
+        """(N, S, 5, H, W), a copy."""
+        return torch.cat([self.first, self.second], -1)[:, :, :, 1:-2].permute(0, 3, 4, 1, 2)
 
     def to(self, device) -> "Pyramid":
-        moved = Pyramid.__new__(Pyramid)
-        moved.table = self.table.to(device)
-        return moved
+        return Pyramid(self.first.to(device), self.second.to(device))
+
+    @staticmethod
+    def cat(pyramids: Sequence["Pyramid"]) -> "Pyramid":
+        """One pyramid of several, padded with zeros to the largest height, width and level count."""
+        def joined(tables: list[Tensor]) -> Tensor:
+            shape = [max(t.shape[d] for t in tables) for d in range(1, 5)]
+            return torch.cat([_pad(t, shape, 0) for t in tables])
+
+        return Pyramid(joined([p.first for p in pyramids]), joined([p.second for p in pyramids]))
 
 
 @dataclass
@@ -105,7 +129,7 @@ class ImageRecords:
         dtype = responses.dtype
         level_sigma = 2.0 ** (k.to(dtype) / 2)
         return cls(
-            pyramid=Pyramid(responses),
+            pyramid=Pyramid.of(responses),
             source=torch.arange(batch, device=responses.device),
             levels=torch.full((batch,), levels, dtype=torch.long, device=responses.device),
             sizes=torch.tensor([[height, width]] * batch, dtype=torch.long, device=responses.device),
@@ -121,17 +145,21 @@ class ImageRecords:
             canonical=pad(steer(raw, points.theta)),
         )
 
+    def own_pyramid(self) -> Pyramid:
+        """The pyramid of exactly these records, in their order (shared where it is the whole one)."""
+        whole = self.pyramid
+        if len(self) == len(whole) and bool((self.source == torch.arange(len(self), device=self.device)).all()):
+            return whole
+        return Pyramid(whole.first[self.source], whole.second[self.source])
+
     @property
     def responses(self) -> Tensor:
-        """(N, S, 5, H, W) responses of these records (a copy unless they are the whole pyramid)."""
-        whole = self.pyramid.responses
-        if len(self) == whole.shape[0] and bool((self.source == torch.arange(len(self), device=self.device)).all()):
-            return whole
-        return whole[self.source]
+        """(N, S, 5, H, W) responses of these records (a copy)."""
+        return self.own_pyramid().responses
 
     @property
     def dtype(self) -> torch.dtype:
-        return self.pyramid.table.dtype
+        return self.pyramid.first.dtype
 
     def __len__(self) -> int:
         return self.source.shape[0]
@@ -177,10 +205,8 @@ class ImageRecords:
                 continue
             shape = [max(p.shape[d] for p in parts) for d in range(1, parts[0].ndim)]
             joined[f.name] = torch.cat([_pad(p, shape, fills.get(f.name, 0)) for p in parts])
-        responses = [r.responses for r in records]
-        shape = [max(p.shape[d] for p in responses) for d in range(1, 5)]
-        pyramid = Pyramid(torch.cat([_pad(p, shape, 0) for p in responses]))
-        return ImageRecords(pyramid, torch.arange(len(pyramid.table), device=pyramid.table.device), **joined)
+        pyramid = Pyramid.cat([r.own_pyramid() for r in records])
+        return ImageRecords(pyramid, torch.arange(len(pyramid), device=pyramid.first.device), **joined)
 
 
 def _pad(t: Tensor, shape: list[int], fill) -> Tensor:

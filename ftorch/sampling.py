@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .record import EDGEL_SLOTS, ImageRecords
+from .record import EDGEL_SLOTS, ImageRecords, Pyramid
 from .salient import EDGEL
 
 
@@ -47,41 +47,45 @@ def sample_primitives(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor
 
 def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,
                 edgel: bool) -> tuple[Tensor, Tensor]:
-    """Responses of one part kind at flat inputs (M,): (M, 2) first-order pairs at u for an edgel,
-    (M, 15) blocks at u-1, u, u+1 for a texel, in the image frame, and validity (M,). Only valid
-    samples are read (invalid ones are zero): a texel reads 4 corners x 4 levels x 5 responses,
-    an edgel 4 corners x 2 levels x 2."""
-    table = records.pyramid.table
-    size = records.sizes[image]
+    """Responses of one part kind at finite inputs of one shape (``image``, each sample's record,
+    broadcasts to it): (..., 2) first-order pairs at u for an edgel, (..., 15) blocks at u-1, u,
+    u+1 for a texel, in the image frame, and validity (...). Invalid samples are zero. A texel
+    reads 4 corners x 4 levels x 5 responses, an edgel 4 corners x 2 levels x 2."""
     u = level_index(sigma)
-    inside = (x >= 0) & (y >= 0) & (x <= size[:, 1] - 1) & (y <= size[:, 0] - 1)
+    size, levels = records.sizes[image], records.levels[image]
     reach = 0 if edgel else 1
-    valid = inside & (u - reach >= 0) & (u + reach <= records.levels[image] - 1)
-    out = x.new_zeros(len(x), 2 if edgel else 15)
-    chosen = valid.nonzero()[:, 0]
-    if len(chosen):
-        out[chosen] = _read(table, records.source[image[chosen]], x[chosen], y[chosen], u[chosen], edgel)
-    return out, valid
+    valid = ((x >= 0) & (y >= 0) & (x <= size[..., 1] - 1) & (y <= size[..., 0] - 1)
+             & (u - reach >= 0) & (u + reach <= levels - 1))
+    values = _read(records.pyramid, records.source[image].expand(x.shape), x, y, u, edgel)
+    return torch.where(valid[..., None], values, 0.0), valid
 
 
-def _read(table: Tensor, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edgel: bool) -> Tensor:
-    """Bilinear in (x, y), linear in the level u, from the pyramid table (see ``Pyramid``)."""
-    height, width, stride = table.shape[1], table.shape[2], table.shape[3]
+def _read(pyramid: Pyramid, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edgel: bool) -> Tensor:
+    """Bilinear in (x, y), linear in the level u, from the pyramid's tables (see ``Pyramid``);
+    positions outside the pyramid read its nearest cells (their samples are invalid)."""
+    shape = x.shape
+    source, x, y, u = source.reshape(-1), x.reshape(-1), y.reshape(-1), u.reshape(-1)
+    _, height, width, stride, _ = pyramid.first.shape
     lo = torch.floor(u).clamp(0, stride - 4)
     w = (u - lo).clamp(0, 1)[:, None]
-    x0, y0 = torch.floor(x), torch.floor(y)
+    # the cell's lower corner; on the last row or column the cell below reads it with weight 1
+    x0, y0 = torch.floor(x).clamp(0, max(width - 2, 0)), torch.floor(y).clamp(0, max(height - 2, 0))
     wx, wy = (x - x0)[:, None], (y - y0)[:, None]
-    xs = (x0.long()[:, None] + torch.arange(2, device=x.device)).clamp(0, width - 1)
-    ys = (y0.long()[:, None] + torch.arange(2, device=y.device)).clamp(0, height - 1)
-    pixel = ((source[:, None, None] * height + ys[:, :, None]) * width + xs[:, None, :]).reshape(-1, 4)
-    weights = (torch.cat([1 - wy, wy], 1)[:, :, None] * torch.cat([1 - wx, wx], 1)[:, None, :]).reshape(-1, 4, 1)
-    # row r of a view holds `span` values from table entry r (level r - 1 within its pixel)
-    span = 7 if edgel else 20
-    rows = table.as_strided(((table.numel() - span) // 5 + 1, span), (5, 1))
-    first = pixel * stride + lo.long()[:, None] + (1 if edgel else 0)
-    corners = rows.index_select(0, first.reshape(-1)).view(-1, 4, span)
-    planar = (weights * corners).sum(1)
-    if edgel:  # levels lo, lo + 1 x (G1@0, G1@pi/2)
-        return (1 - w) * planar[:, 0:2] + w * planar[:, 5:7]
-    planar = planar.view(-1, 4, 5)  # levels lo-1 .. lo+2
-    return ((1 - w[:, :, None]) * planar[:, 0:3] + w[:, :, None] * planar[:, 1:4]).flatten(1)
+    weights = ((1 - wy) * (1 - wx), (1 - wy) * wx, wy * (1 - wx), wy * wx)
+    # table entry lo + 1 holds level lo: an edgel reads levels lo, lo + 1, a texel lo - 1 .. lo + 2
+    entry = ((source * height + y0.long()) * width + x0.long()) * stride + lo.long() + (1 if edgel else 0)
+    corners = torch.tensor([0, 1, width, width + 1], device=x.device) * stride
+    rows = (entry[:, None] + corners).reshape(-1)
+
+    def planar(table: Tensor, span: int) -> Tensor:
+        """The four corners' runs of ``span`` numbers from ``rows``, weighted and summed (M, span)."""
+        size = table.shape[-1]
+        runs = table.view(-1).as_strided(((table.numel() - span) // size + 1, span), (size, 1))
+        c = runs.index_select(0, rows).view(-1, 4, span)
+        return weights[0] * c[:, 0] + weights[1] * c[:, 1] + weights[2] * c[:, 2] + weights[3] * c[:, 3]
+
+    if edgel:  # (G1@0, G1@pi/2) at levels lo, lo + 1
+        pair = planar(pyramid.first, 4)
+        return ((1 - w) * pair[:, 0:2] + w * pair[:, 2:4]).view(*shape, 2)
+    blocks = torch.cat([planar(pyramid.first, 8).view(-1, 4, 2), planar(pyramid.second, 12).view(-1, 4, 3)], -1)
+    return ((1 - w[:, :, None]) * blocks[:, 0:3] + w[:, :, None] * blocks[:, 1:4]).view(*shape, 15)
