@@ -60,6 +60,13 @@ class InstanceList:
         column = self._column.get(feature)
         return np.full(len(self), np.nan) if column is None else self._values[:, column].copy()
 
+    def block(self, features: list) -> np.ndarray:
+        """Values of several features over all instances (F, n), NaN where not measured."""
+        known = [f in self._column for f in features]
+        if all(known):
+            return self._values[:, [self._column[f] for f in features]].T.copy()
+        return np.stack([self.values(f) for f in features]) if features else np.zeros((0, len(self)))
+
     def values_table(self) -> np.ndarray:
         """All values (instances, features), NaN where not measured."""
         return self._values.copy()

@@ -185,16 +185,16 @@ class DistinctiveFeatureLearner:
             if against not in masks:
                 masks[against] = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present
         discriminated = np.stack([masks[self.discriminates.get((label, f)) or frozenset()] for f in features])
-        values = np.stack([self.instances.values(f) for f in features])
+        values = self.instances.block(features)
         result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), self.cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
 
     def _estimate(self, label) -> None:
         net = self.networks[label]
-        states = {}
-        for f in net.features:
-            values = self.instances.values(f)
-            states[f] = np.where(np.isnan(values), -1, (values > net.threshold[f]).astype(int))
+        values = self.instances.block(net.features)
+        thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
+        coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
+        states = dict(zip(net.features, coded))
         net.estimate(self.instances.has(label), states, self.pseudocount)
 
     def reestimate(self) -> None:
@@ -275,10 +275,12 @@ class DistinctiveFeatureLearner:
             carriers = [f for f in net.features if k > 1 or f in rec.values]
             present = torch.from_numpy(self.instances.has(c))
             if carriers:
-                values = torch.from_numpy(np.stack([self.instances.values(f) for f in carriers]))
+                values = torch.from_numpy(self.instances.block(carriers))
                 cuts = torch.tensor([net.threshold[f] for f in carriers], dtype=torch.float64)
-                powers = [distinctive_at(values, cuts, present, torch.from_numpy(self.instances.has(d)) & ~present)
-                          for d in others]
+                against = torch.from_numpy(np.stack([self.instances.has(d) for d in others])) & ~present
+                n_feat, n = values.shape
+                powers = distinctive_at(values.repeat(len(others), 1), cuts.repeat(len(others)), present,
+                                        against[:, None, :].expand(-1, n_feat, -1).reshape(-1, n)).view(len(others), n_feat)
                 strongest = [p.topk(min(k, len(p))) for p in powers]
                 scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
                 if k > 1:
