@@ -79,11 +79,13 @@ class InstanceList:
         labels = set(labels)
         return np.array([bool(labels & own) for own in self.labels], dtype=bool)
 
-    def forget(self, feature: Hashable) -> None:
-        """Drop a feature's column (a discarded feature)."""
-        column = self._column.pop(feature, None)
-        if column is None:
+    def forget(self, features: Iterable[Hashable]) -> None:
+        """Drop features' columns (discarded features); unknown ones are ignored."""
+        columns = [self._column[f] for f in features if f in self._column]
+        if not columns:
             return
-        self.features.pop(column)
-        self._values = np.delete(self._values, column, axis=1)
+        keep = np.ones(len(self.features), dtype=bool)
+        keep[columns] = False
+        self.features = [f for f, k in zip(self.features, keep) if k]
+        self._values = self._values[:, keep]
         self._column = {f: i for i, f in enumerate(self.features)}

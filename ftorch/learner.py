@@ -312,7 +312,7 @@ class DistinctiveFeatureLearner:
                     net.remove_feature(f)
                     self.discriminates.pop((label, f), None)
             self.usage.pop(f, None)
-            self.instances.forget(f)
+        self.instances.forget(unused)
         if unused:
             for label in self.networks:
                 self._estimate(label)

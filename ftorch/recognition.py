@@ -73,7 +73,10 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     index = {k: i for i, k in enumerate(keys)}
     where = [np.array([index[k] for k in net.features], dtype=np.int64) for net in nets]
     local = [dict(zip(net.features, range(len(net.features)))) for net in nets]
-    holders = [[n for n, net in enumerate(nets) if key in local[n]] for key in keys]
+    holders = [[] for _ in keys]  # the networks holding each feature, in network order
+    for n, net in enumerate(nets):
+        for key in net.features:
+            holders[index[key]].append(n)
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
     evaluated = [net.evaluate(state) for net, state in zip(nets, states)]
     belief, informative = [e[0] for e in evaluated], [e[1] for e in evaluated]

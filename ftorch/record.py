@@ -167,6 +167,8 @@ class ImageRecords:
     def __getitem__(self, index) -> "ImageRecords":
         """The records ``index`` selects (an int, slice or index tensor); the pyramid is shared."""
         if isinstance(index, int):
+            if len(self) == 1 and index in (0, -1):
+                return self  # one record selecting itself: keeps what was computed for it (feature values' points)
             index = slice(index, index + 1) if index != -1 else slice(-1, None)
         return ImageRecords(self.pyramid, **{f.name: getattr(self, f.name)[index] for f in fields(self)[1:]})
 

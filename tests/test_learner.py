@@ -95,8 +95,12 @@ def test_instance_list_counts_only_measured_values():
     assert instances.add("i1", {"A"}) == 0 and len(instances) == 2
     assert np.isnan(instances.get("i2", "f")) and instances.get("i1", "f") == 0.5
     assert instances.has("A").tolist() == [True, False] and instances.has_any({"A", "B"}).tolist() == [True, True]
-    instances.forget("f")
-    assert instances.features == [] and np.isnan(instances.get("i1", "f"))
+    instances.set("i2", "g", 0.25)
+    instances.set("i1", "h", 0.75)
+    assert instances.block(["h", "f"]).tolist()[0][0] == 0.75 and np.isnan(instances.block(["h", "f"])[1, 1])
+    instances.forget(["f", "h", "unknown"])
+    assert instances.features == ["g"] and np.isnan(instances.get("i1", "f")) and instances.get("i2", "g") == 0.25
+    assert np.isnan(instances.get("i1", "g")) and np.isnan(instances.get("i1", "h"))
 
 
 def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
