@@ -18,7 +18,20 @@ class InstanceList:
         self.features: list[Hashable] = []
         self._row: dict[Hashable, int] = {}
         self._column: dict[Hashable, int] = {}
-        self._values = np.zeros((0, 0))
+        self._store = np.full((0, 0), np.nan)  # grows by doubling; the table is its used corner
+
+    @property
+    def _values(self) -> np.ndarray:
+        """The table (instances, features), a view of the store."""
+        return self._store[: len(self.images), : len(self.features)]
+
+    def _reserve(self, rows: int, columns: int) -> None:
+        have_rows, have_columns = self._store.shape
+        if rows > have_rows or columns > have_columns:
+            grown = np.full((have_rows if rows <= have_rows else max(rows, 2 * have_rows),
+                             have_columns if columns <= have_columns else max(columns, 2 * have_columns)), np.nan)
+            grown[: self._store.shape[0], : self._store.shape[1]] = self._store
+            self._store = grown
 
     def __len__(self) -> int:
         return len(self.images)
@@ -27,17 +40,17 @@ class InstanceList:
         """Row of ``image``, added with its true classes if new."""
         if image in self._row:
             return self._row[image]
+        self._reserve(len(self.images) + 1, len(self.features))
         self._row[image] = len(self.images)
         self.images.append(image)
         self.labels.append(frozenset(labels))
-        self._values = np.vstack([self._values, np.full((1, self._values.shape[1]), np.nan)])
         return self._row[image]
 
     def column(self, feature: Hashable) -> int:
         if feature not in self._column:
+            self._reserve(len(self.images), len(self.features) + 1)
             self._column[feature] = len(self.features)
             self.features.append(feature)
-            self._values = np.hstack([self._values, np.full((self._values.shape[0], 1), np.nan)])
         return self._column[feature]
 
     def set(self, image: Hashable, feature: Hashable, value: float) -> None:
@@ -86,6 +99,8 @@ class InstanceList:
             return
         keep = np.ones(len(self.features), dtype=bool)
         keep[columns] = False
+        kept = self._values[:, keep]
+        self._store[:, : len(self.features)] = np.nan
         self.features = [f for f, k in zip(self.features, keep) if k]
-        self._values = self._values[:, keep]
+        self._store[: len(self.images), : len(self.features)] = kept
         self._column = {f: i for i, f in enumerate(self.features)}
