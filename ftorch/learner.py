@@ -175,16 +175,17 @@ class DistinctiveFeatureLearner:
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
-    def _discretize(self, label, features: list) -> tuple[np.ndarray, np.ndarray]:
+    def _discretize(self, label, features: list, against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
-        it discriminates (def. 4.2), in one batched KSD."""
+        it discriminates (def. 4.2; ``against``, where given, for all of them), in one batched KSD."""
         present = self.instances.has(label)
+        others = [against if against is not None else self.discriminates.get((label, f)) for f in features]
+        others = [d or frozenset() for d in others]
         masks = {}
-        for f in features:
-            against = self.discriminates.get((label, f)) or frozenset()
-            if against not in masks:
-                masks[against] = (self.instances.has_any(against) if against else np.ones_like(present)) & ~present
-        discriminated = np.stack([masks[self.discriminates.get((label, f)) or frozenset()] for f in features])
+        for d in others:
+            if d not in masks:
+                masks[d] = (self.instances.has_any(d) if d else np.ones_like(present)) & ~present
+        discriminated = np.stack([masks[d] for d in others])
         values = self.instances.block(features)
         result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), self.cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
@@ -405,13 +406,13 @@ class DistinctiveFeatureLearner:
             if not candidates:
                 continue
             self._measure(env, candidates + net.features, images)
-            for candidate in candidates:
-                self.discriminates[(char, candidate)] = disc
-                cut, power = (float(v[0]) for v in self._discretize(char, [candidate]))
+            # trying a candidate changes no candidate's values or classes: discretize them all at once
+            cuts, powers = self._discretize(char, candidates, disc)
+            for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
                 if power <= 0 or power < t_ksd:
-                    del self.discriminates[(char, candidate)]
                     failed.append(candidate)
                     continue
+                self.discriminates[(char, candidate)] = disc
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
                 self._estimate(char)

@@ -74,15 +74,14 @@ def _read(pyramid: Pyramid, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edg
     weights = ((1 - wy) * (1 - wx), (1 - wy) * wx, wy * (1 - wx), wy * wx)
     # table entry lo + 1 holds level lo: an edgel reads levels lo, lo + 1, a texel lo - 1 .. lo + 2
     entry = ((source * height + y0.long()) * width + x0.long()) * stride + lo.long() + (1 if edgel else 0)
-    corners = torch.tensor([0, 1, width, width + 1], device=x.device) * stride
-    rows = (entry[:, None] + corners).reshape(-1)
+    rows = (entry, entry + stride, entry + width * stride, entry + (width + 1) * stride)  # the cell's corners
 
     def planar(table: Tensor, span: int) -> Tensor:
         """The four corners' runs of ``span`` numbers from ``rows``, weighted and summed (M, span)."""
         size = table.shape[-1]
         runs = table.view(-1).as_strided(((table.numel() - span) // size + 1, span), (size, 1))
-        c = runs.index_select(0, rows).view(-1, 4, span)
-        return weights[0] * c[:, 0] + weights[1] * c[:, 1] + weights[2] * c[:, 2] + weights[3] * c[:, 3]
+        c = [runs.index_select(0, r) for r in rows]
+        return weights[0] * c[0] + weights[1] * c[1] + weights[2] * c[2] + weights[3] * c[3]
 
     if edgel:  # (G1@0, G1@pi/2) at levels lo, lo + 1
         pair = planar(pyramid.first, 4)

@@ -25,18 +25,23 @@ def _train(env, learner, cycles: int, t_ksd: float = 0.0, order_seed: int = 0) -
 
 
 def _search(env, rounds: int, succeed_at: int | None, monkeypatch) -> tuple[bool, list, list]:
-    """A search for class 0 against 1 in which only the ``succeed_at``-th candidate tried reaches the target."""
+    """A search for class 0 against 1 in which only the ``succeed_at``-th candidate discretized reaches
+    the target; returns (found, the alg. 4.10 methods called, the candidates discretized)."""
     learner = DistinctiveFeatureLearner(seed=1, search_rounds=rounds)
     _train(env, learner, cycles=1)
     calls, tried = [], []
     generate = learner._candidates
     monkeypatch.setattr(learner, "_candidates", lambda method, *a: calls.append(method) or generate(method, *a))
 
-    def power(label, features):
+    def power(label, features, against=None):
+        first = len(tried)
         tried.extend(features)
-        return np.zeros(len(features)), np.full(len(features), float(len(tried) - 1 == succeed_at))
+        return np.zeros(len(features)), np.array([float(first + j == succeed_at) for j in range(len(features))])
     monkeypatch.setattr(learner, "_discretize", power)
-    return learner._search(env, 0, 0, frozenset({1}), True, 0.5, lambda rec: True), calls, tried
+    found = learner._search(env, 0, 0, frozenset({1}), True, 0.5, lambda rec: True)
+    if found:  # the successful candidate, and no other of those discretized, joined class 0's network
+        assert [f for f in tried if f in learner.networks[0]] == [tried[succeed_at]]
+    return found, calls, tried
 
 
 @pytest.mark.parametrize("rounds", [1, 3])
@@ -51,7 +56,8 @@ def test_the_search_goes_on_past_one_call_of_alg_4_10_and_stops_at_the_first_suc
     n = len(first_round) + 3  # a candidate of the second call
     assert not _search(shapes, 1, n, monkeypatch)[0]
     found, calls, tried = _search(shapes, 3, n, monkeypatch)
-    assert found and len(tried) == n + 1 and tried[:len(first_round)] == first_round
+    assert found and tried[:len(first_round)] == first_round
+    assert n < len(tried) <= n + 10  # the search ended with the call of alg. 4.10 (n_fgen = 10) that held it
     assert 5 < len(calls) < 10
 
 
