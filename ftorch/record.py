@@ -8,6 +8,8 @@ first-order slots of the middle block (3.4.1) and leaves the rest zero.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Sequence
@@ -75,11 +77,26 @@ class Pyramid:
     @staticmethod
     def cat(pyramids: Sequence["Pyramid"]) -> "Pyramid":
         """One pyramid of several, padded with zeros to the largest height, width and level count."""
-        def joined(tables: list[Tensor]) -> Tensor:
-            shape = [max(t.shape[d] for t in tables) for d in range(1, 5)]
-            return torch.cat([_pad(t, shape, 0) for t in tables])
+        dtype = functools.reduce(torch.promote_types, [p.first.dtype for p in pyramids])
+        out = Pyramid.zeros(sum(len(p) for p in pyramids), *(max(p.first.shape[d] for p in pyramids) for d in (1, 2, 3)),
+                            dtype, pyramids[0].first.device)
+        start = 0
+        for p in pyramids:
+            out.put(start, p)
+            start += len(p)
+        return out
 
-        return Pyramid(joined([p.first for p in pyramids]), joined([p.second for p in pyramids]))
+    @staticmethod
+    def zeros(n: int, height: int, width: int, entries: int, dtype: torch.dtype, device) -> "Pyramid":
+        """An empty pyramid of n images of ``entries`` = S+3 table entries."""
+        return Pyramid(*(torch.zeros(n, height, width, entries, k, dtype=dtype, device=device) for k in (2, 3)))
+
+    def put(self, start: int, other: "Pyramid") -> None:
+        """Copy ``other`` into images start, start+1, ... (top left; the rest stays zero)."""
+        _, height, width, entries, _ = other.first.shape
+        rows = slice(start, start + len(other))
+        self.first[rows, :height, :width, :entries] = other.first
+        self.second[rows, :height, :width, :entries] = other.second
 
 
 @dataclass
@@ -194,9 +211,10 @@ class ImageRecords:
         }
 
     @staticmethod
-    def cat(records: Sequence["ImageRecords"]) -> "ImageRecords":
-        """Concatenate records of different sizes, padding pyramids and point lists."""
-        if len(records) == 1:
+    def cat(records: Sequence["ImageRecords"], pyramid: Pyramid | None = None) -> "ImageRecords":
+        """Concatenate records of different sizes, padding pyramids and point lists; ``pyramid``:
+        the joined pyramid, in this order, where the caller has built it (their own are not read)."""
+        if len(records) == 1 and pyramid is None:
             return records[0]
         fills = {"sigma": 1, "kind": -1, "mask": False}
         joined = {}
@@ -207,7 +225,7 @@ class ImageRecords:
                 continue
             shape = [max(p.shape[d] for p in parts) for d in range(1, parts[0].ndim)]
             joined[f.name] = torch.cat([_pad(p, shape, fills.get(f.name, 0)) for p in parts])
-        pyramid = Pyramid.cat([r.own_pyramid() for r in records])
+        pyramid = Pyramid.cat([r.own_pyramid() for r in records]) if pyramid is None else pyramid
         return ImageRecords(pyramid, torch.arange(len(pyramid), device=pyramid.first.device), **joined)
 
 
@@ -260,11 +278,20 @@ class FeatureSpace(nn.Module):
         for i, image in enumerate(loaded):
             groups.setdefault((tuple(image.shape), image.dtype), []).append(i)
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
-        parts, order = [], []
+        # each batch's pyramid is copied into the joined one as soon as it is made and then dropped,
+        # so that building holds one set of tables, not two
+        height, width = (max(image.shape[d] for image in loaded) for d in (-2, -1))
+        entries = max(self.scale_space.num_levels(*image.shape[-2:]) for image in loaded) + 3
+        parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
-            parts.append(self(torch.stack([loaded[i] for i in idx])))
+            part = self(torch.stack([loaded[i] for i in idx]))
+            if pyramid is None:
+                dtype = functools.reduce(torch.promote_types, [part.dtype] + [image.dtype for image in loaded])
+                pyramid = Pyramid.zeros(len(loaded), height, width, entries, dtype, device)
+            pyramid.put(len(order), part.pyramid)
+            parts.append(dataclasses.replace(part, pyramid=pyramid))
             order.extend(idx)
-        joined = ImageRecords.cat(parts)
+        joined = ImageRecords.cat(parts, pyramid)
         inverse = torch.empty(len(order), dtype=torch.long)
         inverse[torch.tensor(order)] = torch.arange(len(order))
         return joined[inverse.to(joined.device)]
