@@ -264,25 +264,30 @@ class DistinctiveFeatureLearner:
         classes and the true classes; and the k strongest carriers of every pair scored count as
         used (alg. 5.3 step 4), since recognition stops consulting once a class is certain."""
         k = self.redundancy
-        best = None
         labels = list(self.networks)
+        pairs = []  # (c, the classes d, c's carriers)
         for c in labels:
             if entropy.get(c, 0.0) <= 0 and not (k > 1 and c in true):
                 continue
             others = [d for d in labels if (d in true) != (c in true)]
-            if not others:
-                continue
-            net = self.networks[c]
-            carriers = [f for f in net.features if k > 1 or f in rec.values]
-            present = torch.from_numpy(self.instances.has(c))
+            if others:
+                pairs.append((c, others, [f for f in self.networks[c].features if k > 1 or f in rec.values]))
+        # KSD_{c,d}(f) of every pair and carrier in one batch: rows c, d, f
+        member = {label: self.instances.has(label) for label in labels}
+        rows = [(c, d, f) for c, others, carriers in pairs for d in others for f in carriers]
+        if rows:
+            values = self.instances.block([f for _, _, f in rows])
+            cuts = np.array([self.networks[c].threshold[f] for c, _, f in rows])
+            present = np.stack([member[c] for c, _, _ in rows])
+            against = np.stack([member[d] for _, d, _ in rows]) & ~present
+            powers = distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
+                                    torch.from_numpy(against))
+        best, start = None, 0
+        for c, others, carriers in pairs:
             if carriers:
-                values = torch.from_numpy(self.instances.block(carriers))
-                cuts = torch.tensor([net.threshold[f] for f in carriers], dtype=torch.float64)
-                against = torch.from_numpy(np.stack([self.instances.has(d) for d in others])) & ~present
-                n_feat, n = values.shape
-                powers = distinctive_at(values.repeat(len(others), 1), cuts.repeat(len(others)), present,
-                                        against[:, None, :].expand(-1, n_feat, -1).reshape(-1, n)).view(len(others), n_feat)
-                strongest = [p.topk(min(k, len(p))) for p in powers]
+                block = powers[start : start + len(others) * len(carriers)].view(len(others), len(carriers))
+                start += block.numel()
+                strongest = [p.topk(min(k, len(p))) for p in block]
                 scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
                 if k > 1:
                     self._mark_usage({carriers[i] for top in strongest for i in top.indices.tolist()})
