@@ -88,7 +88,8 @@ class _ReferencePoints:
 
     @staticmethod
     def of(records: ImageRecords, kind: str) -> "_ReferencePoints":
-        """The points of ``kind`` in ``records``, found once per records object."""
+        """The points of ``kind`` in ``records``, found once per records object (records are never
+        changed in place)."""
         known = records.__dict__.setdefault("_reference_points", {})
         if kind not in known:
             known[kind] = _ReferencePoints(records, kind)

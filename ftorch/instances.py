@@ -75,10 +75,12 @@ class InstanceList:
 
     def block(self, features: list) -> np.ndarray:
         """Values of several features over all instances (F, n), NaN where not measured."""
-        known = [f in self._column for f in features]
-        if all(known):
-            return self._values[:, [self._column[f] for f in features]].T.copy()
-        return np.stack([self.values(f) for f in features]) if features else np.zeros((0, len(self)))
+        out = np.full((len(features), len(self)), np.nan)
+        known = [(i, self._column[f]) for i, f in enumerate(features) if f in self._column]
+        if known:
+            rows, columns = zip(*known)
+            out[list(rows)] = self._values[:, list(columns)].T
+        return out
 
     def values_table(self) -> np.ndarray:
         """All values (instances, features), NaN where not measured."""

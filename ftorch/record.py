@@ -55,8 +55,8 @@ class Pyramid:
         """The pyramid of responses (N, S, 5, H, W)."""
         batch, levels, _, height, width = responses.shape
 
-        def table(order: slice) -> Tensor:
-            part = responses[:, :, order]
+        def table(basis: slice) -> Tensor:
+            part = responses[:, :, basis]
             out = part.new_zeros(batch, height, width, levels + 3, part.shape[2])
             out[:, :, :, 1:-2] = part.permute(0, 3, 4, 1, 2)
             return out

@@ -10,6 +10,7 @@ from ftorch.evaluate import feature_values
 from ftorch.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
 from ftorch.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.reference import reference_values
+from ftorch.sampling import sample_part
 
 from .conftest import random_image
 
@@ -64,6 +65,25 @@ def test_sampled_features_have_value_one_at_their_own_reference_point(records):
     np.testing.assert_allclose(values.values[:, 2].numpy(), 1.0, atol=1e-9)
     p = int(torch.nonzero((records.canonical[2] == torch.tensor(texel.vector, dtype=torch.float64)).all(1))[0, 0])
     assert (float(values.x[0, 2]), float(values.y[0, 2])) == (float(records.x[2, p]), float(records.y[2, p]))
+
+
+def test_sampling_at_grid_points_returns_the_stored_responses_exactly(records):
+    """Alg. 3.6 step 4 at integer positions and levels, the last row and column included; outside: zero, invalid."""
+    n, height, width = 1, 64, 56
+    levels = int(records.levels[n])
+    responses = records.responses[n]
+    xs = torch.tensor([0, width - 1, 0, width - 1, 17, width - 1, width - 0.5], dtype=torch.float64)
+    ys = torch.tensor([0, 0, height - 1, height - 1, 23, 40, 3], dtype=torch.float64)
+    for edgel, us in ((True, range(levels)), (False, range(1, levels - 1))):
+        for u in us:
+            sigma = torch.full_like(xs, 2.0 ** (u / 2))
+            image = torch.full((len(xs),), n)
+            sample, valid = sample_part(records, image, xs, ys, sigma, edgel)
+            assert valid.tolist() == [True] * 6 + [False] and not sample[6].any()
+            for j in range(6):
+                x, y = int(xs[j]), int(ys[j])
+                expected = responses[u, :2, y, x] if edgel else responses[u - 1 : u + 2, :, y, x].flatten()
+                assert torch.equal(sample[j], expected)
 
 
 def test_values_are_invariant_to_affine_intensity_changes():
