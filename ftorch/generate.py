@@ -17,8 +17,8 @@ from .evaluate import feature_values
 from .features import Geometric, LocalFeature, Part, Texel
 from .record import EDGEL_SLOTS, ImageRecords
 from .salient import EDGEL
-from .sampling import advance, sample_primitives
-from .steering import steer
+from .sampling import advance, sample_part
+from .steering import rotate_pair, steer
 
 
 def _choose(candidates: Tensor, generator) -> int | None:
@@ -48,11 +48,9 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     phi, dtheta = math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0
     d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
     x, y, sigma, theta = advance(*previous, phi, dtheta, d, dsigma)
-    code = torch.tensor([int(records.kind[n, q])], device=records.device)
     image = torch.tensor([n], device=records.device)
-    sample, _ = sample_primitives(records, image, x[None], y[None], sigma[None], code)
-    vector = steer(sample, theta[None])[0]
-    vector = vector[EDGEL_SLOTS] if kind == "edgel" else vector
+    sample, _ = sample_part(records, image, x[None], y[None], sigma[None], kind == "edgel")
+    vector = (rotate_pair(sample, theta[None]) if kind == "edgel" else steer(sample, theta[None]))[0]
     return Part(kind, vector.tolist(), phi, dtheta, d, dsigma)
 
 

@@ -13,8 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .record import EDGEL_SLOTS, ImageRecords, Pyramid
-from .salient import EDGEL
+from .record import ImageRecords, Pyramid
 
 
 def level_index(sigma: Tensor) -> Tensor:
@@ -28,21 +27,6 @@ def advance(x: Tensor, y: Tensor, sigma: Tensor, theta: Tensor, phi, dtheta, d, 
     """Alg. 3.6 step 3: location, scale and orientation of part i from those of part i-1."""
     step = sigma * d
     return x + step * torch.cos(theta + phi), y + step * torch.sin(theta + phi), sigma * dsigma, theta + dtheta
-
-
-def sample_primitives(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,
-                      kind: Tensor) -> tuple[Tensor, Tensor]:
-    """Responses (M, 15) in descriptor layout, image frame, and validity (M,) for flat inputs (M,)
-    of mixed kinds; invalid samples are zero."""
-    out = x.new_zeros(len(x), 15)
-    valid = torch.zeros(len(x), dtype=torch.bool, device=x.device)
-    for edgel in (True, False):
-        chosen = ((kind == EDGEL) == edgel).nonzero()[:, 0]
-        if len(chosen):
-            values, ok = sample_part(records, image[chosen], x[chosen], y[chosen], sigma[chosen], edgel)
-            out[chosen, EDGEL_SLOTS if edgel else slice(None)] = values
-            valid[chosen] = ok
-    return out, valid
 
 
 def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,
