@@ -8,7 +8,6 @@ first-order slots of the middle block (3.4.1) and leaves the rest zero.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -54,14 +53,16 @@ class Pyramid:
     def of(cls, responses: Tensor) -> "Pyramid":
         """The pyramid of responses (N, S, 5, H, W)."""
         batch, levels, _, height, width = responses.shape
+        out = cls.zeros(batch, height, width, levels + 3, responses.dtype, responses.device)
+        out.write(0, responses)
+        return out
 
-        def table(basis: slice) -> Tensor:
-            part = responses[:, :, basis]
-            out = part.new_zeros(batch, height, width, levels + 3, part.shape[2])
-            out[:, :, :, 1:-2] = part.permute(0, 3, 4, 1, 2)
-            return out
-
-        return cls(table(slice(0, 2)), table(slice(2, 5)))
+    def write(self, start: int, responses: Tensor) -> None:
+        """Responses (n, S, 5, H, W) into images start, start+1, ... (top left; level j at entry j+1)."""
+        n, levels, _, height, width = responses.shape
+        at = (slice(start, start + n), slice(0, height), slice(0, width), slice(1, levels + 1))
+        self.first[at] = responses[:, :, :2].permute(0, 3, 4, 1, 2)
+        self.second[at] = responses[:, :, 2:].permute(0, 3, 4, 1, 2)
 
     def __len__(self) -> int:
         return self.first.shape[0]
@@ -125,7 +126,8 @@ class ImageRecords:
     canonical: Tensor
 
     @classmethod
-    def build(cls, space: ScaleSpaceOutput, points: Points) -> "ImageRecords":
+    def build(cls, space: ScaleSpaceOutput, points: Points, into: Pyramid | None = None, offset: int = 0) -> "ImageRecords":
+        """Records of one batch; its pyramid is written into images offset, ... of ``into`` where given."""
         responses = space.responses
         batch, levels, _, height, width = responses.shape
         b, y, x, k = points.image, points.y, points.x, points.level
@@ -145,9 +147,11 @@ class ImageRecords:
 
         dtype = responses.dtype
         level_sigma = 2.0 ** (k.to(dtype) / 2)
+        if into is not None:
+            into.write(offset, responses)
         return cls(
-            pyramid=Pyramid.of(responses),
-            source=torch.arange(batch, device=responses.device),
+            pyramid=Pyramid.of(responses) if into is None else into,
+            source=torch.arange(offset, offset + batch, device=responses.device),
             levels=torch.full((batch,), levels, dtype=torch.long, device=responses.device),
             sizes=torch.tensor([[height, width]] * batch, dtype=torch.long, device=responses.device),
             x=pad(x.to(dtype)),
@@ -278,18 +282,17 @@ class FeatureSpace(nn.Module):
         for i, image in enumerate(loaded):
             groups.setdefault((tuple(image.shape), image.dtype), []).append(i)
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
-        # each batch's pyramid is copied into the joined one as soon as it is made and then dropped,
-        # so that building holds one set of tables, not two
+        # each batch's responses are written straight into the joined pyramid, so that building
+        # holds one set of tables, not two
         height, width = (max(image.shape[d] for image in loaded) for d in (-2, -1))
         entries = max(self.scale_space.num_levels(*image.shape[-2:]) for image in loaded) + 3
         parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
-            part = self(torch.stack([loaded[i] for i in idx]))
+            space = self.scale_space(torch.stack([loaded[i] for i in idx]))
             if pyramid is None:
-                dtype = functools.reduce(torch.promote_types, [part.dtype] + [image.dtype for image in loaded])
+                dtype = functools.reduce(torch.promote_types, [space.responses.dtype] + [image.dtype for image in loaded])
                 pyramid = Pyramid.zeros(len(loaded), height, width, entries, dtype, device)
-            pyramid.put(len(order), part.pyramid)
-            parts.append(dataclasses.replace(part, pyramid=pyramid))
+            parts.append(ImageRecords.build(space, self.salient(space), pyramid, len(order)))
             order.extend(idx)
         joined = ImageRecords.cat(parts, pyramid)
         inverse = torch.empty(len(order), dtype=torch.long)
