@@ -40,6 +40,13 @@ Options for generalization beyond the thesis (each default is the thesis's behav
   an absent feature may be occluded), in training and recognition alike.
 - ``cut_position`` w: a node's cut-point lies at w between the two adjacent values where its KSD
   is reached (0.5, the midpoint, as 4.3.2).
+- ``test_information`` (bits): the stopping threshold of alg. 4.4 when the learner answers
+  (``recognize``, ``recognize_many``), while ``min_information`` stops the recognitions inside
+  learning (alg. 4.7 step 1, alg. 4.8 step 8, alg. 5.1), which decide what is a mistake and which
+  features count as used. 4.4.2 offers the threshold only as a trade of queries for confidence;
+  the thesis's experiments consult features "exhaustively" (0). A learner trained with a
+  threshold rules a class out after one or two absent features and never asks the rest of its
+  network, which gives ignorant answers; asking until I_max = 0 uses all the evidence it has.
 - ``pseudocount`` a: CPTs count (n + a) / (N + 2a). The thesis's relative frequencies (a = 0)
   give a feature present in every training view of c P(absent | c) = 0, so one unseen view
   without it makes c impossible: an ignorant result.
@@ -65,7 +72,7 @@ from .recognition import Recognition, outcome, recognize, residual_entropy
 
 KIND = "learner"
 EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
-OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "cut_position")
+OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "cut_position", "test_information")
 
 
 class Presentation(NamedTuple):
@@ -106,18 +113,20 @@ class DistinctiveFeatureLearner:
 
     ``learn(env, i)`` presents image i of an :class:`ImageSet` with its true classes;
     ``min_information`` (bits) is the stopping threshold that 4.4.2 offers for alg. 4.4: recognition
-    stops once no unqueried feature has I(C, F) above it (0: stop only at I_max = 0, as printed);
-    ``recognize``/``recognize_many`` recognize images of any image set; ``save``/``load``
+    stops once no unqueried feature has I(C, F) above it (0: stop only at I_max = 0, as printed)
+    in the recognitions of learning; ``recognize``/``recognize_many`` recognize images of any image
+    set with ``test_information`` as theirs; ``save``/``load``
     write and read the whole state (networks, instance list, usage, random state) exactly.
     """
 
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
                  search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
-                 cut_position: float = 0.5):
+                 cut_position: float = 0.5, test_information: float = 0.0):
         if int(n_ex) < 1 or int(n_fgen) < 1:
             raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
-        if not 0.0 <= min_information < 1.0:
-            raise InputError(f"min_information must lie in [0, 1) bits, got {min_information}")
+        for name, bits in (("min_information", min_information), ("test_information", test_information)):
+            if not 0.0 <= bits < 1.0:
+                raise InputError(f"{name} must lie in [0, 1) bits, got {bits}")
         if int(search_rounds) < 1 or int(redundancy) < 1:
             raise InputError(f"search_rounds and redundancy must be at least 1, got {search_rounds} and {redundancy}")
         if not 0.0 <= pseudocount < float("inf"):
@@ -127,7 +136,7 @@ class DistinctiveFeatureLearner:
         if evidence not in EVIDENCE:
             raise InputError(f"evidence {evidence!r}: expected one of {', '.join(EVIDENCE)}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
-        self.min_information = float(min_information)
+        self.min_information, self.test_information = float(min_information), float(test_information)
         self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
         self.pseudocount, self.cut_position = float(pseudocount), float(cut_position)
         self.generator = torch.Generator().manual_seed(int(seed))
@@ -159,18 +168,22 @@ class DistinctiveFeatureLearner:
 
     # -- recognition (alg. 4.4) --------------------------------------------------------------
     def recognize(self, env: ImageSet, image: int) -> Recognition:
-        """Recognize one image of ``env`` (alg. 4.4); nothing is learned or recorded."""
+        """Recognize one image of ``env`` (alg. 4.4, stopping at ``test_information``); nothing is
+        learned or recorded."""
         return self.recognize_many(env, [image])[0]
 
     def recognize_many(self, env: ImageSet, images) -> list[Recognition]:
         """Recognize several images: every feature of every network is measured on all of them in one batch."""
+        return self._recognize_many(env, images, self.test_information)
+
+    def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
         images = list(images)
         features = self._in_use()
         table = env.values(features, images) if features else np.zeros((0, len(images)))
         out = []
         for k in range(len(images)):
             column = dict(zip(features, table[:, k].tolist()))
-            out.append(recognize(self.networks, column.__getitem__, max(self.min_information, 1e-12),
+            out.append(recognize(self.networks, column.__getitem__, max(bits, 1e-12),
                                  positive_only=self.evidence == "positive"))
         return out
 
@@ -298,8 +311,12 @@ class DistinctiveFeatureLearner:
                 best = (c, others[j], scores[j])
         return best
 
+    def _learning_recognition(self, env: ImageSet, image: int) -> Recognition:
+        """A recognition inside learning: it stops at ``min_information``."""
+        return self._recognize_many(env, [image], self.min_information)[0]
+
     def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
-        rec = self.recognize(env, image)
+        rec = self._learning_recognition(env, image)
         self._record(image, rec)
         self._mark_usage(rec.queried)
         return rec
@@ -421,7 +438,7 @@ class DistinctiveFeatureLearner:
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
                 self._estimate(char)
-                after = self.recognize(env, image)
+                after = self._learning_recognition(env, image)
                 self._record(image, after)
                 if succeeded(after):
                     self._mark_usage([*after.queried, candidate])
@@ -478,10 +495,12 @@ class DistinctiveFeatureLearner:
         at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
         self.n_ex, self.n_fgen = _count(state["n_ex"]), _count(state["n_fgen"])
         self.min_information = _number(state["min_information"])
-        options = {**DistinctiveFeatureLearner().options(), **{k: state[k] for k in OPTIONS if k in state}}
+        # a state written before test_information existed answered with min_information
+        options = {**DistinctiveFeatureLearner().options(), "test_information": self.min_information,
+                   **{k: state[k] for k in OPTIONS if k in state}}
         for k in ("search_rounds", "redundancy"):
             options[k] = _count(options[k])
-        for k in ("pseudocount", "cut_position"):
+        for k in ("pseudocount", "cut_position", "test_information"):
             options[k] = _number(options[k])
         probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **options)  # validates them
         for k in OPTIONS:

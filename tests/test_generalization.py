@@ -146,19 +146,20 @@ def test_pseudocounts_follow_laplace_and_zero_keeps_relative_frequencies():
 
 
 def test_options_are_saved_validated_and_refused_with_one_line(shapes):
-    learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5)
+    learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5,
+                                        test_information=0.2)
     copy = DistinctiveFeatureLearner()
     copy.load_state_dict(learner.state_dict())
     assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5,
-                              "cut_position": 0.5}
+                              "cut_position": 0.5, "test_information": 0.2}
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
-                {"pseudocount": float("nan")}):
+                {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")}):
         with pytest.raises(InputError):
             DistinctiveFeatureLearner(**bad)
 
 
 @pytest.mark.parametrize("option", [["--search-rounds", "0"], ["--redundancy", "0"], ["--pseudocount", "-1"],
-                                    ["--pseudocount", "inf"]])
+                                    ["--pseudocount", "inf"], ["--test-information", "1"]])
 def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path, capsys):
     from training import run
     try:

@@ -225,9 +225,9 @@ def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
     stops where no unqueried feature has more than ``bits`` of information with any class."""
     learner, _ = train(shapes, seed=0)
     for image in range(18, 30):
-        learner.min_information = 0.0
+        learner.test_information = 0.0
         full = learner.recognize(shapes, image)
-        learner.min_information = bits
+        learner.test_information = bits
         short = learner.recognize(shapes, image)
         assert short.queried == full.queried[:len(short.queried)]
         states = {label: net.state({f: int(short.values[f] > net.threshold[f]) for f in short.queried if f in net})
@@ -237,4 +237,32 @@ def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
         assert max(remaining, default=0.0) <= bits
     with pytest.raises(InputError, match="min_information"):
         DistinctiveFeatureLearner(min_information=1.5)
+    with pytest.raises(InputError, match="test_information"):
+        DistinctiveFeatureLearner(test_information=-0.1)
     assert DistinctiveFeatureLearner(min_information=0.25).state_dict()["min_information"] == 0.25
+
+
+def test_learning_stops_at_min_information_and_answers_at_test_information(shapes):
+    """Two thresholds of alg. 4.4: the recognitions inside learning stop at ``min_information`` and
+    decide what is learned; the learner's answers stop at ``test_information``. A state written
+    before ``test_information`` existed answers with ``min_information``, as it did then."""
+    def taught(test_bits):
+        learner = DistinctiveFeatureLearner(seed=0, min_information=0.3, test_information=test_bits, redundancy=3,
+                                            pseudocount=1)
+        results = [learner.learn(shapes, i, t_ksd=0.9).result for i in list(range(18)) * 3]
+        return learner, results
+
+    short, results_short = taught(0.3)
+    full, results_full = taught(0.0)
+    assert results_short == results_full  # learning never consults test_information
+    assert short.state_dict()["networks"] == full.state_dict()["networks"]
+    asked_short = [len(short.recognize(shapes, i).queried) for i in range(18, 30)]
+    asked_full = [len(full.recognize(shapes, i).queried) for i in range(18, 30)]
+    assert all(a <= b for a, b in zip(asked_short, asked_full)) and sum(asked_short) < sum(asked_full)
+    state = full.state_dict()
+    first = full.learn(shapes, 0).recognition  # a recognition inside learning
+    assert first.queried == short.recognize(shapes, 0).queried
+    del state["test_information"]
+    old = DistinctiveFeatureLearner()
+    old.load_state_dict(state)
+    assert old.test_information == 0.3 and old.options() == short.options()

@@ -220,8 +220,15 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     again = json.loads((tmp_path / "b" / "robustness.json").read_text())
     assert again["average"] == result["average"]  # same seed, same report
+    assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "clean", "--quiet", "--device", "cpu",
+                     "--test-information", "0.9", "--out", str(tmp_path / "c")]) == 0
+    short = json.loads((tmp_path / "c" / "robustness.json").read_text())
+    assert short["test_information"] == 0.9 and result["test_information"] is None  # None: the learner's own
+    assert short["folds"][0]["ours"]["clean"]["queried"] < ours["clean"]["queried"]
     capsys.readouterr()
     assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "blur"]) == 2
     assert run.main(["robustness", "--checkpoint", str(tmp_path / "nothing")]) == 2
+    assert run.main(["robustness", "--checkpoint", str(out), "--test-information", "1.5"]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
-    assert len(errors) == 2 and "--perturb 'blur'" in errors[0] and "not a run folder" in errors[1]
+    assert len(errors) == 3 and "--perturb 'blur'" in errors[0] and "not a run folder" in errors[1]
+    assert "test_information must lie in [0, 1)" in errors[2]
