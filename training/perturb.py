@@ -48,7 +48,7 @@ def perturb(images: list[torch.Tensor], labels: list[frozenset], kind: str,
     labels = [frozenset(l) for l in labels]
     if kind == "pair":
         return _pair(images, labels, rng)
-    change = {"rotate": _rotate, "clutter": _clutter, "occlude": _occlude}[kind]
+    change = {"rotate": rotate, "clutter": _clutter, "occlude": _occlude}[kind]
     return [change(image, rng) for image in images], labels
 
 
@@ -81,7 +81,8 @@ def _array(image: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(image.detach().cpu().numpy())
 
 
-def _rotate(image: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+def rotate(image: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """In-plane rotation by U(0, 360) degrees and scaling by U(0.75, 1) about the image centre."""
     angle, scale = rng.uniform(0, 360), rng.uniform(0.75, 1)
     height, width = image.shape
     matrix = cv2.getRotationMatrix2D(((width - 1) / 2, (height - 1) / 2), angle, scale)
@@ -105,7 +106,12 @@ def _clutter(image: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
     left = rng.integers(texture.shape[1] - 2 * width + 1)
     crop = cv2.resize(texture[top:top + 2 * height, left:left + 2 * width], (width, height),
                       interpolation=cv2.INTER_AREA)
-    return torch.where(mask(image), image, torch.from_numpy(crop).to(image.dtype))
+    return paste(image, crop)
+
+
+def paste(image: torch.Tensor, background: np.ndarray) -> torch.Tensor:
+    """The object (its silhouette, :func:`mask`) on ``background`` (H, W) instead of black."""
+    return torch.where(mask(image), image, torch.from_numpy(background).to(image.dtype))
 
 
 def _start(rng: np.random.Generator, low: int, high: int, side: int, size: int) -> int:
@@ -118,17 +124,23 @@ def _start(rng: np.random.Generator, low: int, high: int, side: int, size: int) 
 
 
 def _occlude(image: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    return occlude(image, rng, OCCLUDED, GREY)
+
+
+def occlude(image: torch.Tensor, rng: np.random.Generator, fraction: float, grey: float) -> torch.Tensor:
+    """A square of grey level ``grey`` whose area is ``fraction`` x the mask area, centred on a
+    random pixel of the object's bounding box (moved inside the image where it would leave it)."""
     silhouette = mask(image)
     area = int(silhouette.sum())
     if area == 0:
         return image.clone()
     height, width = image.shape
-    side = min(max(1, round(math.sqrt(OCCLUDED * area))), height, width)
+    side = min(max(1, round(math.sqrt(fraction * area))), height, width)
     rows, cols = np.nonzero(silhouette.numpy())
     top = _start(rng, rows.min(), rows.max(), side, height)
     left = _start(rng, cols.min(), cols.max(), side, width)
     out = image.clone()
-    out[top:top + side, left:left + side] = GREY
+    out[top:top + side, left:left + side] = grey
     return out
 
 

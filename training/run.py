@@ -40,6 +40,7 @@ from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
+from training.augment import augment
 from training.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
@@ -87,17 +88,25 @@ def salient(args) -> int:
     return 0
 
 
-def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool) -> ImageSet:
-    return ImageSet([task.images[i] for i in indices], [{task.labels[i]} for i in indices], space,
-                    names=[task.names[i] for i in indices], progress=progress)
+def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,
+               seed: int = 0, fold: int = 0) -> ImageSet:
+    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.augment)."""
+    images, labels = [task.images[i] for i in indices], [{task.labels[i]} for i in indices]
+    names = [task.names[i] for i in indices]
+    extra, extra_labels = augment([task.view(i) for i in indices] if copies else [], labels, copies, seed, fold)
+    names += [f"{name}~{n + 1}" for n in range(copies) for name in names]
+    return ImageSet(images + extra, labels + extra_labels, space, names=names, progress=progress)
 
 
-def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading: str = "learned features"
-                     ) -> list[tuple[str, np.ndarray]]:
+def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading: str = "learned features",
+                     views: int | None = None) -> list[tuple[str, np.ndarray]]:
     """Figure 4.7 / 5.2 ("features": each class's features present in its middle training view)
     and figure 4.8 ("<class>_features": the first class's features in every training view of it
-    where they are present), as (name, RGB uint8 picture), titled with ``heading`` (task, seed, fold)."""
+    where they are present), as (name, RGB uint8 picture), titled with ``heading`` (task, seed, fold).
+    Only the first ``views`` images of ``env`` are drawn (all by default; the originals, not the
+    augmented copies that follow them)."""
     pictures, panels = [], []
+    shown = env.labels[:views]
 
     def present(label, image: int) -> tuple[list, list[int]]:
         net = learner.networks[label]
@@ -107,9 +116,9 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading:
 
     classes = sorted(learner.networks, key=str)
     for label in classes:
-        views = [i for i, labels in enumerate(env.labels) if label in labels]
-        if views:
-            middle = views[len(views) // 2]
+        of_class = [i for i, labels in enumerate(shown) if label in labels]
+        if of_class:
+            middle = of_class[len(of_class) // 2]
             features, ids = present(label, middle)
             panels.append(titled(draw_features(env.all_records, middle, env.images[middle], features, ids, legend=True),
                                  f"{label}: {len(features)} of {len(learner.networks[label].features)} present"))
@@ -118,8 +127,8 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading:
                                             f"{heading}: each class's features present in its middle training view")))
     if classes:
         first = classes[0]
-        views = [i for i, labels in enumerate(env.labels) if first in labels]
-        drawn = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in views]
+        of_class = [i for i, labels in enumerate(shown) if first in labels]
+        drawn = [titled(draw_features(env.all_records, i, env.images[i], *present(first, i)), env.names[i]) for i in of_class]
         every = grid(drawn, min(5, len(drawn)))
         net = learner.networks[first]
         key = feature_legend(net.features, range(1, len(net.features) + 1), every.shape[1])
@@ -166,10 +175,10 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
     train, test = task.fold(k)
     progress = not args.quiet
     with SummaryWriter(str(logdir / f"fold{k}")) as writer:
-        fold = Fold(k, _image_set(task, train, space, progress), _image_set(task, test, space, progress), config,
+        fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k), _image_set(task, test, space, progress), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
-        pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}")
+        pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
         log_run(writer, config, entry, pictures)
     return entry, fold, learner, pictures
 
@@ -180,7 +189,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
             "size": 64 if args.size is None and task.name == "plym" else args.size, "seed": seed,
             "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information,
             **learner_options(args), "device": str(resolve_device(args.device)), "stages": args.stages,
-            "max_cycles": args.max_cycles, "incremental": incremental}
+            "max_cycles": args.max_cycles, "augment": args.augment, "incremental": incremental}
 
 
 def learner_options(args) -> dict:
@@ -407,6 +416,9 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help=f"added to every CPT count (default {PSEUDOCOUNT:g}; 0: relative frequencies as the thesis)")
     p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
+    p.add_argument("--augment", type=at_least(0, "a number of copies", 100), default=0, metavar="N",
+                   help="also train on N perturbed copies of each training view: rotated and scaled, half of them "
+                        "occluded, half on procedural clutter (training/augment.py; default 0)")
     p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")

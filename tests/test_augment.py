@@ -1,0 +1,72 @@
+"""Augmented training views (--augment): seeded, of the stated families, never the benchmark's photographs."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from training import perturb
+from training.augment import augment, texture
+
+from .test_robustness import views
+
+
+def occluded(image: torch.Tensor) -> bool:
+    """A grey square leaves one exact grey level on many pixels; the objects and the clutter are smooth-valued."""
+    values, counts = torch.unique(image[image > 0], return_counts=True)
+    return bool(len(counts)) and int(counts.max()) >= 50
+
+
+def cluttered(image: torch.Tensor) -> bool:
+    """Without clutter, over half of a copy stays exactly black (the 40 x 40 object fills 39 % of 64 x 64)."""
+    return float((image == 0).float().mean()) < 0.2
+
+
+def test_copies_reproduce_from_seed_and_fold_and_mix_the_families(monkeypatch):
+    images, labels = views()
+    monkeypatch.setattr(perturb, "_textures", lambda: pytest.fail("augmentation used the benchmark's photographs"))
+    a, la = augment(images, labels, 4, seed=3, fold=1)
+    b, _ = augment(images, labels, 4, seed=3, fold=1)
+    c, _ = augment(images, labels, 4, seed=3, fold=2)
+    assert len(a) == 4 * len(images) and la == labels * 4
+    assert all(torch.equal(x, y) for x, y in zip(a, b))
+    assert not any(torch.equal(x, y) for x, y in zip(a, c))
+    assert all(x.shape == images[0].shape and x.dtype == images[0].dtype for x in a)
+    assert not any(torch.equal(x, image) for x, image in zip(a, images * 4))  # every copy is rotated and scaled
+    for x, image in zip(a, images * 4):  # the scale is at most 1: no more object than before, unless occluded
+        assert cluttered(x) or occluded(x) or (x > 0).sum() <= (image > 0).sum() * 1.05
+    occ, clut = [occluded(x) for x in a], [cluttered(x) for x in a]
+    assert 0.3 < np.mean(occ) < 0.7 and 0.3 < np.mean(clut) < 0.7
+    assert {(o, k) for o, k in zip(occ, clut)} == {(False, False), (False, True), (True, False), (True, True)}
+    assert augment(images, labels, 0, seed=3, fold=1) == ([], [])
+
+
+def test_procedural_texture_lies_in_the_stated_range_and_differs_per_draw():
+    rng = np.random.default_rng(0)
+    draws = [texture(rng, 48, 64) for _ in range(20)]
+    for t in draws:
+        assert t.shape == (48, 64) and t.dtype == np.float32 and t.min() >= 0 and t.max() <= 1
+        assert 0.25 < t.mean() < 0.75 and t.std() > 0.05
+    assert not np.array_equal(draws[0], draws[1])
+
+
+def test_runner_trains_on_the_copies_beside_the_originals(tmp_path, capsys):
+    from training import run
+    from training.datasets import plym_task
+
+    args = ["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1",
+            "--max-cycles", "2", "--quiet", "--device", "cpu"]
+    assert run.main([*args, "--augment", "2", "--out", str(tmp_path / "a")]) == 0
+    report = json.loads((tmp_path / "a" / "report.json").read_text())
+    stage = report["folds"][0]["stages"][-1]
+    train, test = plym_task(size=32, seed=0, classes=2).fold(1)
+    assert report["config"]["augment"] == 2
+    assert stage["presentations"] == stage["cycles"] * 3 * len(train)  # originals and two copies each
+    assert sum(sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"]
+               for r in stage["confusion"].values()) == len(test)  # test views are not augmented
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        run.main([*args, "--augment", "-1", "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert refused.value.code == 2 and len(err) == 1 and err[0].startswith("error:")
+    assert not (tmp_path / "b").exists()
