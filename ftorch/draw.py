@@ -20,6 +20,7 @@ from torch import Tensor
 from .checkpoint import write_atomic
 from .evaluate import feature_values
 from .features import Feature, LocalFeature
+from .images import to_uint8
 from .record import ImageRecords
 from .salient import BLOB, CORNER, EDGEL
 from .sampling import advance
@@ -191,6 +192,14 @@ def titled(picture: np.ndarray, title: str) -> np.ndarray:
     strip = np.full((22, picture.shape[1], 3), 255, np.uint8)
     cv2.putText(strip, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return np.concatenate([strip, picture], axis=0)
+
+
+def panel(image: Tensor, title: str, least: int = 96) -> np.ndarray:
+    """A grey (H, W) image in [0, 1] as a titled RGB panel, enlarged by pixel repetition to at
+    least ``least`` pixels a side where it is smaller."""
+    grey = to_uint8(image)
+    grey = np.kron(grey, np.ones((-(-least // grey.shape[0]),) * 2, np.uint8))
+    return titled(np.repeat(grey[..., None], 3, axis=2), title)
 
 
 def grid(pictures: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from training import perturb
-from training.augment import augment, texture
+from training.augment import augment, overview, texture
 
 from .test_robustness import views
 
@@ -61,6 +61,7 @@ def test_runner_trains_on_the_copies_beside_the_originals(tmp_path, capsys):
     stage = report["folds"][0]["stages"][-1]
     train, test = plym_task(size=32, seed=0, classes=2).fold(1)
     assert report["config"]["augment"] == 2
+    assert (tmp_path / "a" / "fold1" / "augmented.png").is_file() and "fold1/augmented.png" in (tmp_path / "a" / "report.md").read_text()
     assert stage["presentations"] == stage["cycles"] * 3 * len(train)  # originals and two copies each
     assert sum(sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"]
                for r in stage["confusion"].values()) == len(test)  # test views are not augmented
@@ -70,3 +71,20 @@ def test_runner_trains_on_the_copies_beside_the_originals(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert refused.value.code == 2 and len(err) == 1 and err[0].startswith("error:")
     assert not (tmp_path / "b").exists()
+
+
+def test_overview_shows_each_class_first_view_beside_its_copies():
+    from ftorch.environment import ImageSet
+
+    images, labels = views(shifts=range(2))
+    copies, true = augment(images, labels, 2, seed=0, fold=1)
+    env = ImageSet(images + copies, labels + true, names=[f"v{i}" for i in range(3 * len(images))])
+    picture = overview(env, len(images), "test")
+    # 64-pixel views are repeated 2x (to at least 96 pixels), under a 22-pixel title
+    assert picture.dtype == np.uint8 and picture.shape[2] == 3
+    assert picture.shape[1] == 3 * 128 + 2 * 6  # one column per class, 6-pixel gaps
+    assert picture.shape[0] == 22 + 3 * (128 + 22) + 2 * 6  # the heading, then the originals and two rows of copies
+    top_left = picture[22 + 22:22 + 150, :128, 0]  # the first original, enlarged 2x: every second pixel
+    assert np.array_equal(top_left[::2, ::2], (images[0].numpy() * 255).round().astype(np.uint8))
+    beside = picture[22 + 22:22 + 150, 134:262, 0]  # beside it: the next class's first view (images 2, 3 are c1)
+    assert np.array_equal(beside[::2, ::2], (images[2].numpy() * 255).round().astype(np.uint8))

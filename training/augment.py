@@ -15,6 +15,9 @@ import cv2
 import numpy as np
 import torch
 
+from ftorch.draw import grid, panel, titled
+from ftorch.environment import ImageSet
+
 from .perturb import occlude, paste, rotate
 
 PRESENT = 0.5  # probability of the occluder, and of the clutter, in a copy
@@ -46,3 +49,15 @@ def augment(images: list[torch.Tensor], labels: list, copies: int, seed: int, fo
             out.append(view)
             true.append(label)
     return out, true
+
+
+def overview(env: ImageSet, views: int, heading: str) -> np.ndarray:
+    """The first training view of each class (top row) and its copies below it (``env``: ``views``
+    originals, then the copies in :func:`augment`'s order), as an RGB picture titled ``heading``."""
+    first = {}
+    for i, labels in enumerate(env.labels[:views]):
+        for label in labels:
+            first.setdefault(label, i)
+    copies = len(env) // views - 1
+    panels = [panel(env.images[i + n * views], env.names[i + n * views]) for n in range(copies + 1) for i in first.values()]
+    return titled(grid(panels, len(first)), f"{heading}: each class's first training view and its augmented copies")

@@ -14,9 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ftorch.draw import grid, save_rgb, titled
+from ftorch.draw import grid, panel, save_rgb, titled
 from ftorch.environment import ImageSet
-from ftorch.images import to_uint8
 from ftorch.learner import DistinctiveFeatureLearner
 from ftorch.record import FeatureSpace
 
@@ -174,12 +173,7 @@ def overview(task: Task, sets: dict, test: list[int], heading: str) -> np.ndarra
     first = {}
     for k, i in enumerate(test):
         first.setdefault(task.labels[i], k)
-    panels = []
-    for name, (images, _) in sets.items():
-        for label, k in first.items():
-            grey = to_uint8(images[k])
-            grey = np.kron(grey, np.ones((-(-96 // grey.shape[0]),) * 2, np.uint8))  # small views enlarged
-            panels.append(titled(np.repeat(grey[..., None], 3, axis=2), f"{name}: {label}"))
+    panels = [panel(images[k], f"{name}: {label}") for name, (images, _) in sets.items() for label, k in first.items()]
     return titled(grid(panels, len(first)), f"{heading}: one test view per class under each set")
 
 

@@ -40,7 +40,7 @@ from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
-from training.augment import augment
+from training.augment import augment, overview as augmented_overview
 from training.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.builtin import builtin_scene
 from training.datasets import Task, load_task
@@ -179,6 +179,8 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
+        if args.augment:
+            pictures.append(("augmented", augmented_overview(fold.train, len(train), f"{task.name}, seed {seed}, fold {k}")))
         log_run(writer, config, entry, pictures)
     return entry, fold, learner, pictures
 
