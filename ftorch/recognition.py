@@ -79,22 +79,26 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
             holders[index[key]].append(n)
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
     evaluated = [net.evaluate(state) for net, state in zip(nets, states)]
-    belief, informative = [e[0] for e in evaluated], [e[1] for e in evaluated]
+    belief = [e[0] for e in evaluated]
+    # every network's informations side by side, network after network: the first maximum is the
+    # first network's, then its first feature's (the tie rule above)
+    start = np.cumsum([0] + [len(w) for w in where])
+    slot_key = np.concatenate(where) if keys else np.zeros(0, dtype=np.int64)
+    informative = np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0)
+    slots = [[] for _ in keys]  # the slots of each feature
+    for slot, i in enumerate(slot_key.tolist()):
+        slots[i].append(slot)
+    asked = np.zeros(len(slot_key), dtype=bool)
     beliefs = [dict(zip(labels, belief))]
-    asked = np.zeros(len(keys), dtype=bool)
     queried, values = [], {}
-    while True:
-        best, best_info = -1, tolerance
-        for n in range(len(nets)):
-            if len(where[n]):
-                info = np.where(asked[where[n]], 0.0, informative[n])
-                j = int(info.argmax())
-                if info[j] > best_info:
-                    best, best_info = int(where[n][j]), float(info[j])
-        if best < 0:
+    while len(informative):
+        slot = int(informative.argmax())
+        if not informative[slot] > tolerance:
             break
+        best = int(slot_key[slot])
         key = keys[best]
-        asked[best] = True
+        asked[slots[best]] = True
+        informative[slots[best]] = 0.0
         value = float(measure(key))
         values[key] = value
         queried.append(key)
@@ -106,7 +110,8 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
             trial[local[n][key]] = int(present)
             posterior, info = nets[n].evaluate(trial)
             if posterior == posterior:  # not NaN: the evidence is possible
-                states[n], belief[n], informative[n] = trial, posterior, info
+                states[n], belief[n] = trial, posterior
+                informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
         beliefs.append(dict(zip(labels, belief)))
     posteriors = beliefs[-1]
     return Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
