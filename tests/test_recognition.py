@@ -67,3 +67,36 @@ def test_negative_evidence_counts_and_impossible_evidence_is_skipped():
     assert result.posteriors["A"] == 0.0  # absence of a perfect feature rules A out
     expected = nets["B"].posterior({"bb": 0, "b": 1})
     assert result.posteriors["B"] == pytest.approx(expected)
+
+
+def network(label: str, cpt, *features: str) -> ClassNetwork:
+    net = ClassNetwork(label)
+    for key in features:
+        net.add_feature(key, threshold=0.5)
+        net.cpt[key] = np.array(cpt, dtype=float)
+    net.prior = np.array([0.5, 0.5])
+    return net
+
+
+@pytest.mark.parametrize("order", [("X", "Y"), ("Y", "X")])
+def test_ties_go_to_the_first_network_then_its_first_feature(order):
+    """Every feature is perfect (1 bit): the first network's first feature is asked, which settles that
+    class; then the next network's first feature."""
+    perfect = [[1.0, 0.0], [0.0, 1.0]]
+    built = {"X": network("X", perfect, "x1", "x2"), "Y": network("Y", perfect, "y1", "y2")}
+    result = recognize({k: built[k] for k in order}, lambda f: 0.9)
+    assert result.queried == [f"{order[0].lower()}1", f"{order[1].lower()}1"]
+
+
+def test_a_feature_is_asked_once_even_where_its_evidence_is_not_entered():
+    """With positive evidence only, absent features stay unobserved and keep their information; a
+    feature shared by two networks is asked once for both."""
+    noisy = [[0.8, 0.2], [0.3, 0.7]]
+    nets = {"X": network("X", noisy, "x1", "s"), "Y": network("Y", noisy, "s", "y1")}
+    values = {"x1": 0.1, "s": 0.9, "y1": 0.1}  # x1 is asked first, absent and not entered; s then changes X
+    calls = []
+    result = recognize(nets, lambda f: calls.append(f) or values[f], positive_only=True)
+    assert sorted(calls) == ["s", "x1", "y1"] and result.queried == calls and calls[0] == "x1"
+    assert result.posteriors["X"] == result.posteriors["Y"] == nets["X"].posterior({"s": 1})  # only s entered
+    both = recognize(nets, lambda f: 0.9)
+    assert sorted(both.queried) == ["s", "x1", "y1"] and both.posteriors["X"] == both.posteriors["Y"] > 0.5
