@@ -91,9 +91,10 @@ def salient(args) -> int:
 def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,
                seed: int = 0, fold: int = 0) -> ImageSet:
     """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.augment)."""
-    images, labels = [task.images[i] for i in indices], [{task.labels[i]} for i in indices]
-    names = [task.names[i] for i in indices]
-    extra, extra_labels = augment([task.view(i) for i in indices] if copies else [], labels, copies, seed, fold)
+    # with copies the views are loaded here once, for the copies and the set alike
+    images = [task.view(i) if copies else task.images[i] for i in indices]
+    labels, names = [{task.labels[i]} for i in indices], [task.names[i] for i in indices]
+    extra, extra_labels = augment(images, labels, copies, seed, fold)
     names += [f"{name}~{n + 1}" for n in range(copies) for name in names]
     return ImageSet(images + extra, labels + extra_labels, space, names=names, progress=progress)
 
