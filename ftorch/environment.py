@@ -26,24 +26,30 @@ class ImageSet:
     """Images with their sets of true classes; records are computed once, on construction.
 
     ``images`` are file paths, arrays or tensors of any sizes; ``names`` default to the file
-    names (or ``image N``). ``examples(label, n)`` draws n random images containing ``label``
-    (alg. 4.8 step 2).
+    names (or ``image N``). ``records``: these images' records where they were computed before
+    (``space.records(images)``, e.g. once for the folds that share the images); they are used
+    as they are, shared, not copied. ``examples(label, n)`` draws n random images containing
+    ``label`` (alg. 4.8 step 2).
     """
 
     def __init__(self, images: Sequence, labels: Sequence[Iterable[Hashable]], space: FeatureSpace | None = None,
-                 names: Sequence[str] | None = None, progress: bool = False):
+                 names: Sequence[str] | None = None, progress: bool = False, records: ImageRecords | None = None):
         if len(images) != len(labels):
             raise InputError(f"{len(images)} images but {len(labels)} label sets")
         if len(images) == 0:
             raise InputError("image set: no images")
+        if records is not None and len(records) != len(images):
+            raise InputError(f"{len(images)} images but {len(records)} records")
         self.labels = [frozenset(l) for l in labels]
         self.names = list(names) if names is not None else [
             Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
         sources = [str(x) if isinstance(x, (str, Path)) else name for x, name in zip(images, self.names)]
         self.images = [self._grey(x, source) for x, source in zip(images, sources)]
         self.space = space or FeatureSpace()
-        with torch.no_grad():
-            self.all_records = self.space.records(self.images, progress=progress, names=sources)
+        if records is None:
+            with torch.no_grad():
+                records = self.space.records(self.images, progress=progress, names=sources)
+        self.all_records = records
         self._single: dict[int, ImageRecords] = {}
         self._row: dict[Feature, int] = {}
         self._cache = np.zeros((0, len(self.labels)))

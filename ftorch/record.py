@@ -182,6 +182,12 @@ class ImageRecords:
     def dtype(self) -> torch.dtype:
         return self.pyramid.first.dtype
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes held: the whole shared pyramid and these records' points and descriptors."""
+        return self.pyramid.first.nbytes + self.pyramid.second.nbytes + sum(
+            getattr(self, f.name).nbytes for f in fields(self)[1:])
+
     def __len__(self) -> int:
         return self.source.shape[0]
 

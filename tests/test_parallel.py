@@ -81,3 +81,39 @@ def test_a_bad_worker_count_gets_one_line(tmp_path, capsys):
     assert "--workers: 0: expected a number of processes (an integer from 1 to 1024)" in capsys.readouterr().err
     with pytest.raises(InputError, match="--workers 0: expected at least 1"):
         run_tasks(len, [[1]], ["a"], workers=0)  # and the library function
+
+
+def test_the_folds_compute_each_view_set_once(tmp_path, monkeypatch):
+    """Fold 2 trains on fold 1's test views and tests on its training views: two record sets, not four."""
+    calls = []
+    records = run.FeatureSpace.records
+    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    assert run.main([*ARGS, "--out", str(tmp_path / "one")]) == 0
+    assert len(calls) == 2 and sum(calls) == 3 * 15  # three solids of 15 views, each view once
+
+
+def is_shared(records) -> bool:
+    return records.pyramid.first.is_shared() and records.pyramid.second.is_shared() and records.x.is_shared()
+
+
+def test_worker_processes_receive_records_in_shared_memory():
+    records = run.FeatureSpace().records([run.torch.rand(32, 32) for _ in range(3)])
+    assert not is_shared(records)
+    assert run_tasks(is_shared, [records, records], ["a", "b"], workers=2, progress=False) == [True, True]
+    assert is_shared(records)  # moved there once, in place: the workers map the parent's pyramid, no copies
+
+
+def test_records_are_shared_only_where_workers_can_map_them(monkeypatch):
+    args = run.parser().parse_args([*ARGS, "--workers", "2"])
+    task = run.load_task(*run._task_key(args))
+    jobs = [{"fold": 1}, {"fold": 2}]
+    shared = run.shared_records(args, task, jobs, run.torch.device("cpu"))
+    assert set(shared) == {tuple(ix) for ix in task.fold(1)}  # fold 2's sets are fold 1's
+    args.augment = 1  # augmented training sets are drawn per fold: only the test sets are shared
+    assert set(run.shared_records(args, task, jobs, run.torch.device("cpu"))) == {tuple(task.fold(k)[1]) for k in (1, 2)}
+    args.augment, args.ray = 0, "auto"  # Ray tasks may run elsewhere: they compute their own
+    assert run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}
+    args.ray = None
+    assert run.shared_records(args, task, jobs, run.torch.device("cuda")) == {}  # no CUDA memory between processes
+    monkeypatch.setattr(run.shutil, "disk_usage", lambda path: run.shutil._ntuple_diskusage(1 << 30, 1 << 30, 0))
+    assert run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}  # /dev/shm too small (containers)

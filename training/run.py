@@ -28,6 +28,7 @@ if __name__ == "__main__":  # Ctrl-C while torch is still loading is one line to
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import shutil  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path
 
@@ -40,6 +41,7 @@ from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_
 from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
+from ftorch.record import ImageRecords
 from training.augment import augment, overview as augmented_overview
 from training.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.builtin import builtin_scene
@@ -89,14 +91,44 @@ def salient(args) -> int:
 
 
 def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,
-               seed: int = 0, fold: int = 0) -> ImageSet:
-    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.augment)."""
+               seed: int = 0, fold: int = 0, records: ImageRecords | None = None) -> ImageSet:
+    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.augment);
+    ``records``: the views' records where they were computed before (without copies only)."""
     # with copies the views are loaded here once, for the copies and the set alike
     images = [task.view(i) if copies else task.images[i] for i in indices]
     labels, names = [{task.labels[i]} for i in indices], [task.names[i] for i in indices]
     extra, extra_labels = augment(images, labels, copies, seed, fold)
     names += [f"{name}~{n + 1}" for n in range(copies) for name in names]
-    return ImageSet(images + extra, labels + extra_labels, space, names=names, progress=progress)
+    return ImageSet(images + extra, labels + extra_labels, space, names=names, progress=progress,
+                    records=None if copies else records)
+
+
+SHARED_MEMORY = "/dev/shm"  # where torch's shared CPU tensors live on Linux
+
+
+def shared_records(args, task: Task, jobs: list[dict], device: torch.device) -> dict[tuple, ImageRecords]:
+    """The records of the view sets the jobs train and test on, by their indices, each computed once.
+
+    Fold 2 trains on fold 1's test views and tests on its training views, and every seed's fold 1
+    uses the same views, so computing them per job repeated the same work (in the same batches: the
+    records are the same bit for bit). Local worker processes receive them through torch's shared
+    memory, so every pyramid is in memory once, however many workers use it. Ray tasks, which may
+    run on other machines, compute their own, and so do local processes on a GPU (no CUDA memory
+    is passed between processes); augmented training sets too (their copies are drawn per fold).
+    """
+    if args.ray is not None or (args.workers > 1 and device.type != "cpu"):
+        return {}
+    space = FeatureSpace().to(device)
+    sets: dict[tuple, ImageRecords] = {}
+    for job in jobs:
+        train, test = task.fold(job["fold"])
+        for indices in [test] if args.augment else [train, test]:
+            if tuple(indices) not in sets:
+                sets[tuple(indices)] = _image_set(task, indices, space, not args.quiet).all_records
+    if args.workers > 1 and Path(SHARED_MEMORY).is_dir() and \
+            sum(r.nbytes for r in sets.values()) > shutil.disk_usage(SHARED_MEMORY).free:
+        return {}  # e.g. a container's 64 MB /dev/shm: the workers compute their own, as on Ray
+    return sets
 
 
 def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading: str = "learned features",
@@ -167,16 +199,20 @@ def _stages(text: str) -> int | None:
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
-                incremental: bool) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
-    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k};
-    also returns the learned features' pictures."""
+                incremental: bool, records: dict[tuple, ImageRecords] | None = None
+                ) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
+    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}, with
+    the view sets' ``records`` where computed before (:func:`shared_records`); also returns the
+    learned features' pictures."""
     from torch.utils.tensorboard import SummaryWriter
 
     config = run_config(args, task, seed, incremental)
     train, test = task.fold(k)
     progress = not args.quiet
+    records = records or {}
     with SummaryWriter(str(logdir / f"fold{k}")) as writer:
-        fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k), _image_set(task, test, space, progress), config,
+        fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k, records.get(tuple(train))),
+                    _image_set(task, test, space, progress, records=records.get(tuple(test))), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume)
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
@@ -224,6 +260,7 @@ def _task_key(args) -> tuple:
 def fold_task(job: dict) -> dict:
     """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
     class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
+    ``job['records']``: the view sets' records where computed before (:func:`shared_records`).
     Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
     key = _task_key(args)
@@ -233,7 +270,7 @@ def fold_task(job: dict) -> dict:
     space = FeatureSpace().to(resolve_device(args.device))
     out, k = Path(job["out"]), job["fold"]
     entry, fold, learner, pictures = _train_fold(args, _TASKS[key], k, job["seed"], space, out, Path(job["logdir"]),
-                                                 job["incremental"])
+                                                 job["incremental"], job.get("records"))
     figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
     (fold.folder / "networks").mkdir(exist_ok=True)
     for label, net in learner.networks.items():
@@ -264,6 +301,9 @@ def recognize_command(args, incremental: bool = False) -> int:
     jobs += [{"args": settings, "fold": 1, "seed": args.seed + n, "out": str(out / f"seed{args.seed + n}"),
               "logdir": str(logdir / f"seed{args.seed + n}"), "incremental": incremental} for n in range(1, args.seeds)]
     names = [f"fold {j['fold']} seed {j['seed']}" for j in jobs]
+    records = shared_records(args, task, jobs, device)
+    for job in jobs:
+        job["records"] = records
     try:
         results = run_tasks(fold_task, jobs, names, args.workers, args.ray, progress=not args.quiet)
     except TasksFailed as failed:
