@@ -1,4 +1,5 @@
-"""The README's examples run as written: every Python block, in order, and every command line parses."""
+"""The README's and the docs' examples run as written: every Python block, in order (the README's
+first, then docs/usage.md's), and every command line parses."""
 import re
 import shlex
 from pathlib import Path
@@ -7,16 +8,18 @@ import pytest
 
 from training import run
 
-README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-CI = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+DOCS = [README] + [(ROOT / "docs" / f"{page}.md").read_text() for page in ("usage", "results", "decisions", "benchmark", "layout")]
+CI = (ROOT / ".ci" / "run").read_text()
 
 
-def blocks(language: str) -> list[str]:
-    return re.findall(rf"```{language}\n(.*?)```", README, re.S)
+def blocks(language: str, pages: list[str] = DOCS) -> list[str]:
+    return [b for page in pages for b in re.findall(rf"```{language}\n(.*?)```", page, re.S)]
 
 
 def test_the_first_lines_say_what_it_is_then_give_the_two_set_up_commands():
-    first = blocks("bash")[0].strip().splitlines()
+    first = blocks("bash", [README])[0].strip().splitlines()
     assert len(first) == 2 and all(line.startswith("pip install torch==2.13.0 -e ") for line in first)
     assert first[0].endswith("&& python -m training.run")
     test_command = first[1]
@@ -46,3 +49,23 @@ def test_every_command_line_example_parses(line):
     line = re.sub(r"\[[^\]]*\]", "", line)  # [optional] parts
     argv = [re.sub(r"\bS\b", "0", a) for a in shlex.split(line)[3:]]
     run.parser().parse_args(argv)  # argparse exits on anything it does not know
+
+
+def _anchors(page: str) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"^#+ (.*)$", page, re.M)}
+
+
+def test_the_readme_is_a_front_page_whose_links_resolve():
+    assert len(README) < 12_000  # the decisions and the full results live in docs/
+    pattern = r"\]\(([\w/.-]+\.(?:md|png))?(?:#([\w-]+))?\)"
+    links = [("", *l) for l in re.findall(pattern, README)]
+    links += [(f"docs/{name}.md", *l) for name, page in zip(("usage", "results", "decisions", "benchmark", "layout"), DOCS[1:])
+              for l in re.findall(pattern, page)]
+    assert len(links) >= 12
+    for source, target, anchor in links:
+        page = ROOT / (source or "README.md")
+        path = page.parent / target if target else page
+        assert path.is_file(), f"{source or 'README.md'}: no {target}"
+        if anchor:
+            assert anchor in _anchors(path.read_text()), f"{source or 'README.md'}: no heading for #{anchor} in {path.name}"

@@ -178,12 +178,12 @@ def save_pictures(pictures: list[tuple[str, np.ndarray]], folder: Path) -> list[
     return paths
 
 
-MIN_INFORMATION = 0.1  # bits; see the README's chapter 5 decisions
+MIN_INFORMATION = 0.1  # bits; see docs/decisions.md, chapter 5
 # Answers stop only at I_max = 0, as alg. 4.4 is printed: chosen on seeds 5-9 at 128x128 against
-# 0.1 (the learning threshold) and values between; see the README's generalization results.
+# 0.1 (the learning threshold) and values between; see docs/results.md (generalization).
 TEST_INFORMATION = 0.0
 # The runner's generalization settings (the library's defaults are the thesis's): chosen on seed 5
-# at 128x128 and seeds 5-6 at 32x32, never on the reported seeds 0-4; see the README's results.
+# at 128x128 and seeds 5-6 at 32x32, never on the reported seeds 0-4; see docs/results.md.
 PSEUDOCOUNT, REDUNDANCY = 1.0, 3
 
 
