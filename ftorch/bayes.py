@@ -27,7 +27,7 @@ from collections.abc import Hashable
 
 import numpy as np
 
-from .features import Conjunction, Disjunction, Feature, Geometric, Texel
+from .features import Feature
 
 CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
@@ -58,30 +58,18 @@ def _normalised(tables: np.ndarray) -> np.ndarray:
     return np.where(total > 0, tables / np.where(total > 0, total, 1), math.nan)
 
 
-def components(feature: Feature) -> list[Feature]:
-    """Direct and indirect sub-features a compound is built from (3.5)."""
-    if isinstance(feature, (Conjunction, Disjunction)):
-        return [feature.a, feature.b, *components(feature.a), *components(feature.b)]
-    if isinstance(feature, Geometric):
-        parts = feature.parts
-        found: list[Feature] = [Geometric(parts[:k]) for k in range(2, len(parts))]
-        if parts[0].kind == "texel":
-            found.append(Texel(parts[0].vector))
-        return found
-    return []
-
-
 def compound_arcs(feature: Feature, present) -> tuple[list, list]:
-    """(parents, children) of ``feature`` among the ``present`` features, by the rules of 4.4.1."""
+    """(parents, children) of ``feature`` among the ``present`` features, by the rules of 4.4.1:
+    each compound type says which way the arcs to its components run (``ARCS_TO_COMPONENTS``)."""
     parents, children = [], []
-    own = set(components(feature))
+    own = set(feature.components())
     for other in present:
         if other == feature:
             continue
         if other in own:  # other is a component of feature
-            (parents if isinstance(feature, Disjunction) else children).append(other)
-        elif feature in set(components(other)):  # feature is a component of other
-            (children if isinstance(other, Disjunction) else parents).append(other)
+            (children if feature.ARCS_TO_COMPONENTS else parents).append(other)
+        elif feature in set(other.components()):  # feature is a component of other
+            (parents if other.ARCS_TO_COMPONENTS else children).append(other)
     return parents, children
 
 

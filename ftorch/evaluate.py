@@ -16,10 +16,9 @@ import torch
 from torch import Tensor
 
 from .errors import InputError
-from .features import Conjunction, Disjunction, Feature, LocalFeature
+from .features import Feature, LocalFeature
 from .record import EDGEL_SLOTS, ImageRecords
-from .sampling import advance, sample_part
-from .steering import rotate_pair, steer
+from .sampling import placements, steered_sample
 
 
 @dataclass
@@ -109,12 +108,11 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], 
     numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
     observed = (reference.canonical**2).sum(-1).expand_as(numerator)
     valid = None
-    x, y, sigma, theta = reference.x, reference.y, reference.sigma, reference.theta
-    for i in range(1, len(kinds)):
-        x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None] for j in range(4)))
-        edgel = kinds[i] == "edgel"
-        sample, ok = sample_part(records, reference.image, x, y, sigma, edgel)
-        sample = rotate_pair(sample, theta) if edgel else steer(sample, theta)
+    attitudes = [tuple(params[:, i, j][:, None] for j in range(4)) for i in range(1, len(kinds))]
+    parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
+    next(parts)  # the first part was matched at the reference points themselves
+    for i, (x, y, sigma, theta) in enumerate(parts, 1):
+        sample, ok = steered_sample(records, reference.image, x, y, sigma, theta, kinds[i] == "edgel")
         numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok
@@ -159,21 +157,11 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
 def _collect(feature: Feature, leaves: dict) -> None:
     if isinstance(feature, LocalFeature):
         leaves.setdefault(feature, len(leaves))
-    else:
-        _collect(feature.a, leaves)
-        _collect(feature.b, leaves)
+    for sub in feature.subfeatures():
+        _collect(sub, leaves)
 
 
 def _combine(feature: Feature, leaf_values: dict) -> tuple[Tensor, ...]:
     if isinstance(feature, LocalFeature):
         return leaf_values[feature]
-    a, b = _combine(feature.a, leaf_values), _combine(feature.b, leaf_values)
-    take_b = b[0] > a[0]
-    located = [torch.where(take_b, fb, fa) for fa, fb in zip(a[1:], b[1:])]
-    if isinstance(feature, Conjunction):
-        value = a[0] * b[0]
-    elif isinstance(feature, Disjunction):
-        value = torch.maximum(a[0], b[0])
-    else:
-        raise InputError(f"unknown feature type {type(feature).__name__}")
-    return (value, *located)
+    return feature.combine(*(_combine(sub, leaf_values) for sub in feature.subfeatures()))

@@ -17,8 +17,7 @@ from .evaluate import feature_values
 from .features import Geometric, LocalFeature, Part, Texel
 from .record import EDGEL_SLOTS, ImageRecords
 from .salient import EDGEL
-from .sampling import advance, sample_part
-from .steering import rotate_pair, steer
+from .sampling import placements, steered_sample
 
 
 def _choose(candidates: Tensor, generator) -> int | None:
@@ -47,11 +46,10 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     kind = _part_kind(records, n, q)
     phi, dtheta = math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0
     d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
-    x, y, sigma, theta = advance(*previous, phi, dtheta, d, dsigma)
+    _, (x, y, sigma, theta) = placements(previous, [(phi, dtheta, d, dsigma)])
     image = torch.tensor([n], device=records.device)
-    sample, _ = sample_part(records, image, x[None], y[None], sigma[None], kind == "edgel")
-    vector = (rotate_pair(sample, theta[None]) if kind == "edgel" else steer(sample, theta[None]))[0]
-    return Part(kind, vector.tolist(), phi, dtheta, d, dsigma)
+    vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == "edgel")
+    return Part(kind, vector[0].tolist(), phi, dtheta, d, dsigma)
 
 
 def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
@@ -97,9 +95,7 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     found = feature_values([feature], records[n])
     if not bool(torch.isfinite(found.x[0, 0])):
         return None
-    state = (found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0])
-    for part in feature.parts[1:]:
-        state = advance(*state, part.phi, part.dtheta, part.d, part.dsigma)
+    *_, state = placements((found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0]), feature.attitudes())
     points = records.mask[n].nonzero()[:, 0]
     distance = torch.hypot(records.x[n, points] - state[0], records.y[n, points] - state[1])
     near = points[(distance >= 0.5) & (distance <= _default_distance(records, n, max_distance))].cpu()
