@@ -22,7 +22,7 @@ from .evaluate import feature_values
 from .features import Feature, LocalFeature
 from .images import to_uint8
 from .record import ImageRecords
-from .salient import BLOB, CORNER, EDGEL
+from .primitives import BLOB, CORNER, EDGEL
 from .sampling import placements
 
 EDGEL_COLOUR = (220, 40, 40)
@@ -121,7 +121,7 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
         previous = None
         for part, state in zip(feature.parts, placements(start, feature.attitudes())):
             px, py, ps, pt = (float(v) for v in state)
-            draw_marker(canvas, EDGEL if part.kind == "edgel" else BLOB, px, py, ps, pt, zoom, colour, 2)
+            draw_marker(canvas, part.kind.codes[0], px, py, ps, pt, zoom, colour, 2)
             here = _centre(px, py, zoom)
             if previous is not None:
                 _line(canvas, previous, here, colour, 1)

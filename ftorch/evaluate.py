@@ -17,7 +17,8 @@ from torch import Tensor
 
 from .errors import InputError
 from .features import Feature, LocalFeature
-from .record import EDGEL_SLOTS, ImageRecords
+from .primitives import PartKind
+from .record import ImageRecords
 from .sampling import placements, steered_sample
 
 
@@ -39,14 +40,10 @@ class FeatureValues:
         return self.values, self.x, self.y, self.sigma, self.theta
 
 
-def part_vector(kind: str, vector: Sequence[float], device=None, dtype=None) -> Tensor:
+def part_vector(kind: PartKind, vector: Sequence[float], device=None, dtype=None) -> Tensor:
     """A part's vector in the 15-slot descriptor layout."""
     out = torch.zeros(15, device=device, dtype=dtype)
-    values = torch.tensor(vector, device=device, dtype=dtype)
-    if kind == "edgel":
-        out[EDGEL_SLOTS] = values
-    else:
-        out[:] = values
+    out[PartKind(kind).slots] = torch.tensor(vector, device=device, dtype=dtype)
     return out
 
 
@@ -74,19 +71,18 @@ class _ReferencePoints:
     x, y, sigma, theta and canonical vector (the first-order pair for edgels, all 15 numbers for
     texels). Per-image maxima are taken in the padded layout ``padded`` = (N, P_kind)."""
 
-    def __init__(self, records: ImageRecords, kind: str):
-        applicable = records.edgel_mask() if kind == "edgel" else records.texel_mask()
+    def __init__(self, records: ImageRecords, kind: PartKind):
+        applicable = kind.mask(records)
         image, point = applicable.nonzero(as_tuple=True)
         rank = applicable.cumsum(1) - 1
         self.image, self.slot = image, rank[image, point]
         self.padded = (len(records), int(rank.max()) + 1 if len(image) else 0)
         self.x, self.y = records.x[image, point], records.y[image, point]
         self.sigma, self.theta = records.sigma[image, point], records.theta[image, point]
-        canonical = records.canonical[..., EDGEL_SLOTS] if kind == "edgel" else records.canonical
-        self.canonical = canonical[image, point]
+        self.canonical = records.canonical[..., kind.slots][image, point]
 
     @staticmethod
-    def of(records: ImageRecords, kind: str) -> "_ReferencePoints":
+    def of(records: ImageRecords, kind: PartKind) -> "_ReferencePoints":
         """The points of ``kind`` in ``records``, found once per records object (records are never
         changed in place)."""
         known = records.__dict__.setdefault("_reference_points", {})
@@ -102,7 +98,7 @@ class _ReferencePoints:
         return torch.where(best >= 0, at, math.nan)
 
 
-def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], records: ImageRecords,
+def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, ...], records: ImageRecords,
                  reference: _ReferencePoints) -> FeatureValues:
     """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14)."""
     numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
@@ -112,7 +108,7 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], 
     parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
     next(parts)  # the first part was matched at the reference points themselves
     for i, (x, y, sigma, theta) in enumerate(parts, 1):
-        sample, ok = steered_sample(records, reference.image, x, y, sigma, theta, kinds[i] == "edgel")
+        sample, ok = steered_sample(records, reference.image, x, y, sigma, theta, kinds[i] == PartKind.EDGEL)
         numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok

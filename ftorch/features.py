@@ -29,14 +29,13 @@ from torch import Tensor
 
 from .checkpoint import decode_text, encode_text
 from .errors import InputError
+from .primitives import PartKind
 
-PART_SIZE = {"texel": 15, "edgel": 2}
 
-
-def _vector(values, kind: str) -> tuple[float, ...]:
+def _vector(values, kind: PartKind) -> tuple[float, ...]:
     vec = tuple(float(v) for v in values)
-    if len(vec) != PART_SIZE[kind]:
-        raise InputError(f"{kind} vector must have {PART_SIZE[kind]} numbers, got {len(vec)}")
+    if len(vec) != kind.size:
+        raise InputError(f"{kind} vector must have {kind.size} numbers, got {len(vec)}")
     if not all(math.isfinite(v) for v in vec):
         raise InputError(f"{kind} vector has NaN or infinite entries")
     if not any(vec):
@@ -60,7 +59,7 @@ class Part(_CachedHash):
     """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3)."""
     __hash__ = _CachedHash.__hash__  # dataclass would replace an inherited one
 
-    kind: str
+    kind: PartKind
     vector: tuple[float, ...]
     phi: float = 0.0
     dtheta: float = 0.0
@@ -68,8 +67,10 @@ class Part(_CachedHash):
     dsigma: float = 1.0
 
     def __post_init__(self):
-        if self.kind not in PART_SIZE:
-            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}")
+        try:
+            object.__setattr__(self, "kind", PartKind(self.kind))
+        except (ValueError, TypeError):
+            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}") from None
         object.__setattr__(self, "vector", _vector(self.vector, self.kind))
         for name in ("phi", "dtheta", "d", "dsigma"):
             value = float(getattr(self, name))
@@ -180,11 +181,11 @@ class Texel(LocalFeature):
     vector: tuple[float, ...]
 
     def __post_init__(self):
-        object.__setattr__(self, "vector", _vector(self.vector, "texel"))
+        object.__setattr__(self, "vector", _vector(self.vector, PartKind.TEXEL))
 
     @property
     def parts(self) -> tuple[Part, ...]:
-        return (Part("texel", self.vector),)
+        return (Part(PartKind.TEXEL, self.vector),)
 
     def to_dict(self) -> dict:
         return {"type": self.TYPE, "vector": list(self.vector)}
@@ -219,7 +220,7 @@ class Geometric(LocalFeature):
     def components(self) -> list[Feature]:
         """Its shorter prefixes of two parts or more, and its first part where that is a texel."""
         found: list[Feature] = [Geometric(self.parts[:k]) for k in range(2, len(self.parts))]
-        if self.parts[0].kind == "texel":
+        if self.parts[0].kind == PartKind.TEXEL:
             found.append(Texel(self.parts[0].vector))
         return found
 

@@ -15,8 +15,8 @@ from torch import Tensor
 from .errors import InputError
 from .evaluate import feature_values
 from .features import Geometric, LocalFeature, Part, Texel
-from .record import EDGEL_SLOTS, ImageRecords
-from .salient import EDGEL
+from .primitives import PartKind
+from .record import ImageRecords
 from .sampling import placements, steered_sample
 
 
@@ -35,8 +35,8 @@ def _point(records: ImageRecords, n: int, p: int) -> tuple[Tensor, ...]:
     return records.x[n, p], records.y[n, p], records.sigma[n, p], records.theta[n, p]
 
 
-def _part_kind(records: ImageRecords, n: int, p: int) -> str:
-    return "edgel" if int(records.kind[n, p]) == EDGEL else "texel"
+def _part_kind(records: ImageRecords, n: int, p: int) -> PartKind:
+    return PartKind.of_point(int(records.kind[n, p]))
 
 
 def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
@@ -48,13 +48,12 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
     _, (x, y, sigma, theta) = placements(previous, [(phi, dtheta, d, dsigma)])
     image = torch.tensor([n], device=records.device)
-    vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == "edgel")
+    vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
     return Part(kind, vector[0].tolist(), phi, dtheta, d, dsigma)
 
 
 def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
-    canonical = records.canonical[n, p]
-    return (canonical[EDGEL_SLOTS] if int(records.kind[n, p]) == EDGEL else canonical).tolist()
+    return records.canonical[n, p, _part_kind(records, n, p).slots].tolist()
 
 
 def random_texel(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texel | None:
@@ -78,7 +77,7 @@ def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator 
     second = _choose(edgels[(distance > 0) & (distance <= _default_distance(records, n, max_distance))], generator)
     if second is None:
         return None
-    head = Part("edgel", _own_vector(records, n, first))
+    head = Part(PartKind.EDGEL, _own_vector(records, n, first))
     return Geometric((head, _relative_part(records, n, second, _point(records, n, first))))
 
 

@@ -14,9 +14,8 @@ from ftorch.errors import InputError
 from ftorch.evaluate import feature_values
 from ftorch.features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, Part, _CachedHash, unpack_features
 from ftorch.generate import random_texel
-from ftorch.record import EDGEL_SLOTS
+from ftorch.primitives import PartKind
 from ftorch.reference import reference_values
-from ftorch.salient import EDGEL
 
 from .conftest import random_image
 
@@ -30,7 +29,7 @@ class Edgel(LocalFeature):
 
     @property
     def parts(self) -> tuple[Part, ...]:
-        return (Part("edgel", self.vector),)
+        return (Part(PartKind.EDGEL, self.vector),)
 
     def to_dict(self) -> dict:
         return {"type": self.TYPE, "vector": list(self.vector)}
@@ -50,8 +49,8 @@ def records():
 
 def edgel_of(records, n: int) -> tuple[Edgel, int]:
     """The toy feature of image n's first salient edgel, and that edgel's slot."""
-    p = int(((records.kind[n] == EDGEL) & records.mask[n]).nonzero()[0])
-    return Edgel(tuple(records.canonical[n, p, EDGEL_SLOTS].tolist())), p
+    p = int(PartKind.EDGEL.mask(records)[n].nonzero()[0])
+    return Edgel(tuple(records.canonical[n, p, PartKind.EDGEL.slots].tolist())), p
 
 
 def test_a_new_type_is_measured_like_the_built_in_ones(records):
