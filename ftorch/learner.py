@@ -218,7 +218,7 @@ class DistinctiveFeatureLearner:
                 cuts, _ = self._discretize(label, net.features)
                 for f, cut in zip(net.features, cuts.tolist()):
                     if np.isfinite(cut):
-                        net.threshold[f] = cut
+                        net.set_threshold(f, cut)
             self._estimate(label)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
@@ -427,7 +427,7 @@ class DistinctiveFeatureLearner:
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
                 continue
-            self._measure(env, candidates + net.features, images)
+            self._measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
             cuts, powers = self._discretize(char, candidates, disc)
             for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
@@ -508,19 +508,10 @@ class DistinctiveFeatureLearner:
         self.presentations, self.sampled = _count(state["presentations"]), _count(state["sampled"])
         self.networks = {}
         for record in state["networks"]:
-            net = ClassNetwork(_label(record["label"]))
-            keys = [at(i) for i in record["features"]]
-            if not len(keys) == len(record["parents"]) == len(record["threshold"]) == len(record["cpt"]):
-                raise ValueError(f"network of class {net.label!r}: {len(keys)} features but "
-                                 f"{len(record['parents'])} parent lists, {len(record['threshold'])} thresholds "
-                                 f"and {len(record['cpt'])} CPTs")
-            net.features = keys
-            net.parents = {k: [at(p) for p in ps] for k, ps in zip(keys, record["parents"])}
-            net.threshold = {k: _number(t) for k, t in zip(keys, record["threshold"])}
-            net.prior = np.array([_number(p) for p in record["prior"]], dtype=float)
-            for k, table in zip(keys, record["cpt"]):
-                net.cpt[k] = decode_array(table)
-            net.validate()
+            net = ClassNetwork.of(_label(record["label"]), [at(i) for i in record["features"]],
+                                  [[at(p) for p in ps] for ps in record["parents"]],
+                                  [_number(t) for t in record["threshold"]], [_number(p) for p in record["prior"]],
+                                  [decode_array(table) for table in record["cpt"]])
             if net.label in self.networks:
                 raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net

@@ -74,7 +74,7 @@ def test_a_new_type_joins_class_networks_with_the_arcs_of_4_4_1(records):
     net = ClassNetwork("duck")
     for feature in (edgel, both, either):
         net.add_feature(feature, *compound_arcs(feature, net.features))
-    assert net.parents[both] == [] and net.parents[edgel] == [both] and net.parents[either] == [edgel]
+    assert net.parents[both] == () and net.parents[edgel] == (both,) and net.parents[either] == (edgel,)
     net.to_pgmpy().check_model()
     assert "variable class" in net.to_bif()
 
