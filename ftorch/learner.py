@@ -152,6 +152,18 @@ class DistinctiveFeatureLearner:
         """The generalization options (module docstring), as keyword arguments of the constructor."""
         return {k: getattr(self, k) for k in OPTIONS}
 
+    def set_params(self, **options) -> "DistinctiveFeatureLearner":
+        """Change generalization options, validated as the constructor validates them, and return
+        the learner; e.g. ``set_params(evidence="positive", test_information=0.1)`` answers with
+        another evidence mode and threshold (the robustness benchmark)."""
+        unknown = sorted(set(options) - set(OPTIONS))
+        if unknown:
+            raise InputError(f"unknown learner options {unknown}: expected some of {', '.join(OPTIONS)}")
+        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **{**self.options(), **options})
+        for k in OPTIONS:
+            setattr(self, k, getattr(probe, k))
+        return self
+
     # -- measurement -------------------------------------------------------------------------
     def _measure(self, env: ImageSet, features, images) -> None:
         """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
@@ -502,9 +514,7 @@ class DistinctiveFeatureLearner:
             options[k] = _count(options[k])
         for k in ("pseudocount", "cut_position", "test_information"):
             options[k] = _number(options[k])
-        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **options)  # validates them
-        for k in OPTIONS:
-            setattr(self, k, getattr(probe, k))
+        self.set_params(**options)
         self.presentations, self.sampled = _count(state["presentations"]), _count(state["sampled"])
         self.networks = {}
         for record in state["networks"]:

@@ -396,13 +396,12 @@ def robustness_command(args) -> int:
         raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     start = time.perf_counter()
     space = FeatureSpace().to(device)
+    answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
+    if args.test_information is not None:
+        answering["test_information"] = args.test_information
     results = []
     for k in folds:
-        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json")
-        if args.evidence != "learned":
-            learner.evidence = args.evidence
-        if args.test_information is not None:
-            learner.test_information = args.test_information
+        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json").set_params(**answering)
         results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
     result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
               "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
