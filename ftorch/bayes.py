@@ -24,10 +24,11 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Hashable
+from types import MappingProxyType
 
 import numpy as np
 
-from .features import Conjunction, Disjunction, Feature, Geometric, Texel
+from .features import Feature
 
 CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
@@ -58,47 +59,19 @@ def _normalised(tables: np.ndarray) -> np.ndarray:
     return np.where(total > 0, tables / np.where(total > 0, total, 1), math.nan)
 
 
-def components(feature: Feature) -> list[Feature]:
-    """Direct and indirect sub-features a compound is built from (3.5)."""
-    if isinstance(feature, (Conjunction, Disjunction)):
-        return [feature.a, feature.b, *components(feature.a), *components(feature.b)]
-    if isinstance(feature, Geometric):
-        parts = feature.parts
-        found: list[Feature] = [Geometric(parts[:k]) for k in range(2, len(parts))]
-        if parts[0].kind == "texel":
-            found.append(Texel(parts[0].vector))
-        return found
-    return []
-
-
 def compound_arcs(feature: Feature, present) -> tuple[list, list]:
-    """(parents, children) of ``feature`` among the ``present`` features, by the rules of 4.4.1."""
+    """(parents, children) of ``feature`` among the ``present`` features, by the rules of 4.4.1:
+    each compound type says which way the arcs to its components run (``ARCS_TO_COMPONENTS``)."""
     parents, children = [], []
-    own = set(components(feature))
+    own = set(feature.components())
     for other in present:
         if other == feature:
             continue
         if other in own:  # other is a component of feature
-            (parents if isinstance(feature, Disjunction) else children).append(other)
-        elif feature in set(components(other)):  # feature is a component of other
-            (children if isinstance(other, Disjunction) else parents).append(other)
+            (children if feature.ARCS_TO_COMPONENTS else parents).append(other)
+        elif feature in set(other.components()):  # feature is a component of other
+            (parents if other.ARCS_TO_COMPONENTS else children).append(other)
     return parents, children
-
-
-class _Tables(dict):
-    """The CPTs of a network: assigning or deleting one invalidates the compiled groups."""
-
-    def __init__(self, network: "ClassNetwork"):
-        super().__init__()
-        self._network = network
-
-    def __setitem__(self, key, value):
-        super().__setitem__(key, np.asarray(value, dtype=float))
-        self._network._compiled = None
-
-    def __delitem__(self, key):
-        super().__delitem__(key)
-        self._network._compiled = None
 
 
 class _Group:
@@ -110,7 +83,7 @@ class _Group:
         m = len(keys)
         self.table = None
         self.weights = 1 << np.arange(m)
-        if m <= network.TABLE_LIMIT:
+        if m <= network.table_limit:
             self.codes = np.arange(2**m)
             self.bits = (self.codes[:, None] >> np.arange(m)[None, :]) & 1  # (2^m, m)
             local = {k: i for i, k in enumerate(keys)}
@@ -172,22 +145,78 @@ class ClassNetwork:
     """The Bayesian network of one class: prior, feature nodes, arcs, CPTs and thresholds.
 
     Evidence is a dict feature -> state (0 or 1), or for the fast path a state array over
-    ``features`` with -1 for unobserved nodes. CPTs are replaced, never edited in place.
+    ``features`` with -1 for unobserved nodes. ``features`` (a tuple), ``parents`` (tuples),
+    ``threshold`` and ``cpt`` are read-only views: the network changes only through its methods
+    (:meth:`add_feature`, :meth:`remove_feature`, :meth:`add_arc`, :meth:`set_threshold`,
+    :meth:`set_cpt`, :meth:`estimate`, the ``prior`` setter), which keep the compiled inference
+    tables valid. CPTs are replaced, never edited in place (they are read-only arrays).
+    ``table_limit``: linked groups up to this many nodes are compiled to tables (0: all by einsum).
     """
 
-    TABLE_LIMIT = 14  # linked groups up to this many nodes are compiled to tables
+    TABLE_LIMIT = 14
 
-    def __init__(self, label: Hashable):
+    def __init__(self, label: Hashable, table_limit: int = TABLE_LIMIT):
         self.label = label
-        self.features: list[Hashable] = []
-        self.parents: dict[Hashable, list[Hashable]] = {}
-        self.threshold: dict[Hashable, float] = {}
+        self.table_limit = table_limit
+        self._features: tuple[Hashable, ...] = ()
+        self._parents: dict[Hashable, tuple[Hashable, ...]] = {}
+        self._threshold: dict[Hashable, float] = {}
+        self._cpt: dict[Hashable, np.ndarray] = {}  # P(F | class, parents...) indexed [c, p1..pk, f]
+        self.parents, self.threshold, self.cpt = (MappingProxyType(d) for d in (self._parents, self._threshold, self._cpt))
         self._compiled: _Compiled | None = None
         self.prior = np.array([0.5, 0.5])
-        self.cpt: dict[Hashable, np.ndarray] = _Tables(self)  # P(F | class, parents...) indexed [c, p1..pk, f]
+
+    @classmethod
+    def of(cls, label: Hashable, features: list, parents: list[list], thresholds: list[float], prior,
+           cpts: list) -> "ClassNetwork":
+        """The network given node by node, as a file stores it; ValueError where it is not valid."""
+        if not len(features) == len(parents) == len(thresholds) == len(cpts):
+            raise ValueError(f"network of class {label!r}: {len(features)} features but {len(parents)} parent lists, "
+                             f"{len(thresholds)} thresholds and {len(cpts)} CPTs")
+        net = cls(label)
+        net._features = tuple(features)
+        net._parents.update((k, tuple(ps)) for k, ps in zip(features, parents))
+        net._threshold.update(zip(features, thresholds))
+        net.prior = prior
+        for key, table in zip(features, cpts):
+            net._put(key, table)
+        net.validate()
+        return net
+
+    @property
+    def features(self) -> tuple[Hashable, ...]:
+        return self._features
 
     def __contains__(self, key) -> bool:
-        return key in self.parents
+        return key in self._parents
+
+    def _put(self, key, table) -> None:
+        table = np.array(table, dtype=float)
+        table.flags.writeable = False
+        self._cpt[key] = table
+        self._compiled = None
+
+    def set_cpt(self, key: Hashable, table) -> None:
+        """Replace node ``key``'s CPT, P(F | class, parents...) indexed [c, p1..pk, f]."""
+        shape = (2,) * (len(self._parents[key]) + 2)
+        if np.shape(table) != shape:
+            raise ValueError(f"CPT of {key!r} has shape {np.shape(table)}, expected {shape}")
+        self._put(key, table)
+
+    def set_threshold(self, key: Hashable, value: float) -> None:
+        """Node ``key`` is present where its feature's value exceeds ``value`` (its KSD cut-point)."""
+        if key not in self:
+            raise ValueError(f"feature {key!r} is not in the network of class {self.label!r}")
+        self._threshold[key] = float(value)
+
+    def add_arc(self, parent: Hashable, child: Hashable) -> None:
+        """A feature arc parent -> child; the child's CPT returns to 1/2 until re-estimated."""
+        if parent not in self or child not in self:
+            raise ValueError(f"an arc needs two nodes of the network of class {self.label!r}")
+        if parent == child or parent in self._parents[child] or parent in self._descendants(child):
+            raise ValueError(f"an arc {parent!r} -> {child!r} would repeat an arc or make a cycle")
+        self._parents[child] += (parent,)
+        self._put(child, np.full((2,) * (len(self._parents[child]) + 2), 0.5))
 
     @property
     def prior(self) -> np.ndarray:
@@ -208,23 +237,24 @@ class ClassNetwork:
                 raise ValueError(f"arc to {other!r}, which is not in the network of class {self.label!r}")
         if set(parents) & set(children) or any(p in self._descendants(c) for c in children for p in parents):
             raise ValueError(f"adding {key!r} would make a cycle in the network of class {self.label!r}")
-        self.features.append(key)
-        self.parents[key] = list(parents)
-        self.threshold[key] = float(threshold)
+        self._features += (key,)
+        self._parents[key] = tuple(parents)
+        self._threshold[key] = float(threshold)
         for child in children:
-            self.parents[child].append(key)
+            self._parents[child] += (key,)
         for node in (key, *children):
-            self.cpt[node] = np.full((2,) * (len(self.parents[node]) + 2), 0.5)
+            self._put(node, np.full((2,) * (len(self._parents[node]) + 2), 0.5))
 
     def remove_feature(self, key: Hashable) -> None:
         """Remove a feature node and its arcs; its children's CPTs return to 1/2 until re-estimated."""
-        self.features.remove(key)
-        for table in (self.parents, self.threshold, self.cpt):
+        self._features = tuple(k for k in self._features if k != key)
+        for table in (self._parents, self._threshold, self._cpt):
             del table[key]
-        for node, parents in self.parents.items():
+        self._compiled = None
+        for node, parents in self._parents.items():
             if key in parents:
-                parents.remove(key)
-                self.cpt[node] = np.full((2,) * (len(parents) + 2), 0.5)
+                self._parents[node] = tuple(p for p in parents if p != key)
+                self._put(node, np.full((2,) * (len(self._parents[node]) + 2), 0.5))
 
     def validate(self) -> None:
         """ValueError unless this is a valid network: a prior and CPTs that are distributions
@@ -273,7 +303,7 @@ class ClassNetwork:
                 index = index * 2 + c[known]
             counts = np.bincount(index, minlength=2 ** len(columns)).reshape((2,) * len(columns)).astype(float)
             total = counts.sum(-1, keepdims=True)
-            self.cpt[key] = np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5)
+            self._put(key, np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5))
 
     # -- exact inference -----------------------------------------------------------------------
     def compiled(self) -> _Compiled:

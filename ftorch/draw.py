@@ -22,8 +22,8 @@ from .evaluate import feature_values
 from .features import Feature, LocalFeature
 from .images import to_uint8
 from .record import ImageRecords
-from .salient import BLOB, CORNER, EDGEL
-from .sampling import advance
+from .primitives import BLOB, CORNER, EDGEL
+from .sampling import placements
 
 EDGEL_COLOUR = (220, 40, 40)
 BLOB_COLOUR = (40, 200, 60)
@@ -98,9 +98,8 @@ PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30
 
 def _subfeatures(feature: Feature, out: dict) -> None:
     out.setdefault(feature, len(out))
-    if not isinstance(feature, LocalFeature):
-        _subfeatures(feature.a, out)
-        _subfeatures(feature.b, out)
+    for sub in feature.subfeatures():
+        _subfeatures(sub, out)
 
 
 def _dotted(canvas, a, b, colour, step: float = 4.0) -> None:
@@ -118,32 +117,21 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
     if not math.isfinite(x):
         return None
     if isinstance(feature, LocalFeature):
-        state = tuple(torch.tensor(v, dtype=torch.float64) for v in (x, y, sigma, theta))
+        start = tuple(torch.tensor(v, dtype=torch.float64) for v in (x, y, sigma, theta))
         previous = None
-        for i, part in enumerate(feature.parts):
-            if i:
-                state = advance(*state, part.phi, part.dtheta, part.d, part.dsigma)
+        for part, state in zip(feature.parts, placements(start, feature.attitudes())):
             px, py, ps, pt = (float(v) for v in state)
-            draw_marker(canvas, EDGEL if part.kind == "edgel" else BLOB, px, py, ps, pt, zoom, colour, 2)
+            draw_marker(canvas, part.kind.codes[0], px, py, ps, pt, zoom, colour, 2)
             here = _centre(px, py, zoom)
             if previous is not None:
                 _line(canvas, previous, here, colour, 1)
             previous = here
         return _centre(x, y, zoom)
-    a = _draw_located(canvas, feature.a, where, zoom, colour)
-    b = _draw_located(canvas, feature.b, where, zoom, colour)
-    if a is not None and b is not None:
+    drawn = [at for at in (_draw_located(canvas, sub, where, zoom, colour) for sub in feature.subfeatures())
+             if at is not None]
+    for a, b in zip(drawn, drawn[1:]):
         _dotted(canvas, a, b, colour)
-    return a or b
-
-
-def describe(feature: Feature) -> str:
-    """A short name of a feature's type and make-up, for legends: 'texel', 'geometric: edgel-texel',
-    'and(texel, geometric: edgel-edgel)'."""
-    if isinstance(feature, LocalFeature):
-        return "texel" if len(feature.parts) == 1 else "geometric: " + "-".join(p.kind for p in feature.parts)
-    word = "and" if type(feature).__name__ == "Conjunction" else "or"
-    return f"{word}({describe(feature.a)}, {describe(feature.b)})"
+    return drawn[0] if drawn else None
 
 
 LEGEND_KEY = ("circle: blob, square: corner", "segment: edgel (sizes: sigma)", "line: geometric parts, dots: and/or")
@@ -151,7 +139,7 @@ LEGEND_KEY = ("circle: blob, square: corner", "segment: edgel (sizes: sigma)", "
 
 def feature_legend(features, ids, width: int) -> np.ndarray:
     """A white strip, ``width`` pixels wide: the marker key, then each feature's id and type in its colour."""
-    lines = [(key, (90, 90, 90)) for key in LEGEND_KEY] + [(f"{i}: {describe(f)}", PALETTE[k % len(PALETTE)])
+    lines = [(key, (90, 90, 90)) for key in LEGEND_KEY] + [(f"{i}: {f.describe()}", PALETTE[k % len(PALETTE)])
                                            for k, (f, i) in enumerate(zip(features, ids))]
     scale = 0.36
     strip = np.full((8 + 14 * len(lines), width, 3), 255, np.uint8)

@@ -16,10 +16,10 @@ import torch
 from torch import Tensor
 
 from .errors import InputError
-from .features import Conjunction, Disjunction, Feature, LocalFeature
-from .record import EDGEL_SLOTS, ImageRecords
-from .sampling import advance, sample_part
-from .steering import rotate_pair, steer
+from .features import Feature, LocalFeature
+from .primitives import PartKind
+from .record import ImageRecords
+from .sampling import placements, steered_sample
 
 
 @dataclass
@@ -40,14 +40,10 @@ class FeatureValues:
         return self.values, self.x, self.y, self.sigma, self.theta
 
 
-def part_vector(kind: str, vector: Sequence[float], device=None, dtype=None) -> Tensor:
+def part_vector(kind: PartKind, vector: Sequence[float], device=None, dtype=None) -> Tensor:
     """A part's vector in the 15-slot descriptor layout."""
     out = torch.zeros(15, device=device, dtype=dtype)
-    values = torch.tensor(vector, device=device, dtype=dtype)
-    if kind == "edgel":
-        out[EDGEL_SLOTS] = values
-    else:
-        out[:] = values
+    out[PartKind(kind).slots] = torch.tensor(vector, device=device, dtype=dtype)
     return out
 
 
@@ -75,19 +71,18 @@ class _ReferencePoints:
     x, y, sigma, theta and canonical vector (the first-order pair for edgels, all 15 numbers for
     texels). Per-image maxima are taken in the padded layout ``padded`` = (N, P_kind)."""
 
-    def __init__(self, records: ImageRecords, kind: str):
-        applicable = records.edgel_mask() if kind == "edgel" else records.texel_mask()
+    def __init__(self, records: ImageRecords, kind: PartKind):
+        applicable = kind.mask(records)
         image, point = applicable.nonzero(as_tuple=True)
         rank = applicable.cumsum(1) - 1
         self.image, self.slot = image, rank[image, point]
         self.padded = (len(records), int(rank.max()) + 1 if len(image) else 0)
         self.x, self.y = records.x[image, point], records.y[image, point]
         self.sigma, self.theta = records.sigma[image, point], records.theta[image, point]
-        canonical = records.canonical[..., EDGEL_SLOTS] if kind == "edgel" else records.canonical
-        self.canonical = canonical[image, point]
+        self.canonical = records.canonical[..., kind.slots][image, point]
 
     @staticmethod
-    def of(records: ImageRecords, kind: str) -> "_ReferencePoints":
+    def of(records: ImageRecords, kind: PartKind) -> "_ReferencePoints":
         """The points of ``kind`` in ``records``, found once per records object (records are never
         changed in place)."""
         known = records.__dict__.setdefault("_reference_points", {})
@@ -103,18 +98,17 @@ class _ReferencePoints:
         return torch.where(best >= 0, at, math.nan)
 
 
-def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[str, ...], records: ImageRecords,
+def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, ...], records: ImageRecords,
                  reference: _ReferencePoints) -> FeatureValues:
     """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14)."""
     numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
     observed = (reference.canonical**2).sum(-1).expand_as(numerator)
     valid = None
-    x, y, sigma, theta = reference.x, reference.y, reference.sigma, reference.theta
-    for i in range(1, len(kinds)):
-        x, y, sigma, theta = advance(x, y, sigma, theta, *(params[:, i, j][:, None] for j in range(4)))
-        edgel = kinds[i] == "edgel"
-        sample, ok = sample_part(records, reference.image, x, y, sigma, edgel)
-        sample = rotate_pair(sample, theta) if edgel else steer(sample, theta)
+    attitudes = [tuple(params[:, i, j][:, None] for j in range(4)) for i in range(1, len(kinds))]
+    parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
+    next(parts)  # the first part was matched at the reference points themselves
+    for i, (x, y, sigma, theta) in enumerate(parts, 1):
+        sample, ok = steered_sample(records, reference.image, x, y, sigma, theta, kinds[i] == PartKind.EDGEL)
         numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok
@@ -159,21 +153,11 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
 def _collect(feature: Feature, leaves: dict) -> None:
     if isinstance(feature, LocalFeature):
         leaves.setdefault(feature, len(leaves))
-    else:
-        _collect(feature.a, leaves)
-        _collect(feature.b, leaves)
+    for sub in feature.subfeatures():
+        _collect(sub, leaves)
 
 
 def _combine(feature: Feature, leaf_values: dict) -> tuple[Tensor, ...]:
     if isinstance(feature, LocalFeature):
         return leaf_values[feature]
-    a, b = _combine(feature.a, leaf_values), _combine(feature.b, leaf_values)
-    take_b = b[0] > a[0]
-    located = [torch.where(take_b, fb, fa) for fa, fb in zip(a[1:], b[1:])]
-    if isinstance(feature, Conjunction):
-        value = a[0] * b[0]
-    elif isinstance(feature, Disjunction):
-        value = torch.maximum(a[0], b[0])
-    else:
-        raise InputError(f"unknown feature type {type(feature).__name__}")
-    return (value, *located)
+    return feature.combine(*(_combine(sub, leaf_values) for sub in feature.subfeatures()))

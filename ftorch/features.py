@@ -5,6 +5,13 @@
   dtheta_i, distances d_i (in units of sigma_{i-1}) and scale ratios dsigma_i (alg. 3.6).
 - :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
 
+Each type carries its own behaviour: its JSON form (``TYPE``, ``to_dict``, ``_from_dict``), its
+parts (a :class:`LocalFeature`, measured at reference points by ``ftorch.evaluate``) or the
+sub-features whose values it combines (``subfeatures``, ``combine``), the components its class
+network links to it and the direction of those arcs (``components``, ``ARCS_TO_COMPONENTS``;
+4.4.1), and its name in legends (``describe``). So a new type is one subclass: defining it
+registers its ``TYPE`` for :meth:`Feature.from_dict`.
+
 A part's vector is its response at its own location and scale, steered to its orientation:
 15 numbers for a texel, 2 for an edgel (the first-order pair, eq. 3.5). ``to_json`` /
 ``from_json`` round-trip every float exactly (Python writes the shortest exact repr).
@@ -15,17 +22,20 @@ import json
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import Tensor
 
 from .checkpoint import decode_text, encode_text
 from .errors import InputError
+from .primitives import PartKind
 
-PART_SIZE = {"texel": 15, "edgel": 2}
 
-
-def _vector(values, kind: str) -> tuple[float, ...]:
+def _vector(values, kind: PartKind) -> tuple[float, ...]:
     vec = tuple(float(v) for v in values)
-    if len(vec) != PART_SIZE[kind]:
-        raise InputError(f"{kind} vector must have {PART_SIZE[kind]} numbers, got {len(vec)}")
+    if len(vec) != kind.size:
+        raise InputError(f"{kind} vector must have {kind.size} numbers, got {len(vec)}")
     if not all(math.isfinite(v) for v in vec):
         raise InputError(f"{kind} vector has NaN or infinite entries")
     if not any(vec):
@@ -49,7 +59,7 @@ class Part(_CachedHash):
     """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3)."""
     __hash__ = _CachedHash.__hash__  # dataclass would replace an inherited one
 
-    kind: str
+    kind: PartKind
     vector: tuple[float, ...]
     phi: float = 0.0
     dtheta: float = 0.0
@@ -57,8 +67,10 @@ class Part(_CachedHash):
     dsigma: float = 1.0
 
     def __post_init__(self):
-        if self.kind not in PART_SIZE:
-            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}")
+        try:
+            object.__setattr__(self, "kind", PartKind(self.kind))
+        except (ValueError, TypeError):
+            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}") from None
         object.__setattr__(self, "vector", _vector(self.vector, self.kind))
         for name in ("phi", "dtheta", "d", "dsigma"):
             value = float(getattr(self, name))
@@ -74,9 +86,43 @@ class Part(_CachedHash):
 
 
 class Feature(_CachedHash):
-    """Base of all features: JSON round trip and structural size."""
+    """Base of all features: JSON round trip, structure, value rule, network arcs, legend name.
+
+    A subclass that sets ``TYPE`` is registered for :meth:`from_dict`; a frozen dataclass subclass
+    keeps the cached hash with ``__hash__ = _CachedHash.__hash__`` (dataclass would replace it).
+    """
+
+    TYPE: ClassVar[str] = ""  # the "type" of its JSON form
+    ARCS_TO_COMPONENTS: ClassVar[bool] = True  # arcs run compound -> component (4.4.1); False: component -> compound
+    _types: ClassVar[dict[str, type]] = {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("TYPE"):
+            Feature._types[cls.TYPE] = cls
 
     def to_dict(self) -> dict:
+        raise NotImplementedError
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "Feature":
+        """The feature of this type that ``data`` (its ``to_dict``) describes."""
+        raise NotImplementedError
+
+    def subfeatures(self) -> tuple["Feature", ...]:
+        """The features whose values this one combines (none for a local feature)."""
+        return ()
+
+    def combine(self, *values: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+        """(value, x, y, sigma, theta) from those of :meth:`subfeatures` (for compounds)."""
+        raise NotImplementedError
+
+    def components(self) -> list["Feature"]:
+        """The direct and indirect sub-features a class network links to this one (4.4.1)."""
+        return [c for sub in self.subfeatures() for c in (sub, *sub.components())]
+
+    def describe(self) -> str:
+        """A short name of the type and make-up, for legends."""
         raise NotImplementedError
 
     def to_json(self) -> str:
@@ -91,13 +137,9 @@ class Feature(_CachedHash):
     def from_dict(data: dict) -> "Feature":
         try:
             kind = data["type"]
-            if kind == "texel":
-                return Texel(data["vector"])
-            if kind == "geometric":
-                return Geometric(tuple(Part(**p) for p in data["parts"]))
-            if kind in ("conjunction", "disjunction"):
-                cls = Conjunction if kind == "conjunction" else Disjunction
-                return cls(Feature.from_dict(data["a"]), Feature.from_dict(data["b"]))
+            cls = Feature._types.get(kind) if isinstance(kind, str) else None
+            if cls is not None:
+                return cls._from_dict(data)
         except (KeyError, TypeError) as err:
             raise InputError(f"not a feature description: {data!r:.200} ({err})") from None
         raise InputError(f"unknown feature type {kind!r}")
@@ -127,26 +169,39 @@ class LocalFeature(Feature):
     def primitives(self) -> int:
         return len(self.parts)
 
+    def attitudes(self) -> list[tuple[float, float, float, float]]:
+        """(phi, dtheta, d, dsigma) of each part after the first: its placement (alg. 3.6 step 3)."""
+        return [(p.phi, p.dtheta, p.d, p.dsigma) for p in self.parts[1:]]
+
 
 @dataclass(frozen=True)
 class Texel(LocalFeature):
     __hash__ = _CachedHash.__hash__
+    TYPE = "texel"
     vector: tuple[float, ...]
 
     def __post_init__(self):
-        object.__setattr__(self, "vector", _vector(self.vector, "texel"))
+        object.__setattr__(self, "vector", _vector(self.vector, PartKind.TEXEL))
 
     @property
     def parts(self) -> tuple[Part, ...]:
-        return (Part("texel", self.vector),)
+        return (Part(PartKind.TEXEL, self.vector),)
 
     def to_dict(self) -> dict:
-        return {"type": "texel", "vector": list(self.vector)}
+        return {"type": self.TYPE, "vector": list(self.vector)}
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "Texel":
+        return cls(data["vector"])
+
+    def describe(self) -> str:
+        return "texel"
 
 
 @dataclass(frozen=True)
 class Geometric(LocalFeature):
     __hash__ = _CachedHash.__hash__
+    TYPE = "geometric"
     parts: tuple[Part, ...]
 
     def __post_init__(self):
@@ -156,12 +211,28 @@ class Geometric(LocalFeature):
         object.__setattr__(self, "parts", parts)
 
     def to_dict(self) -> dict:
-        return {"type": "geometric", "parts": [p.to_dict() for p in self.parts]}
+        return {"type": self.TYPE, "parts": [p.to_dict() for p in self.parts]}
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "Geometric":
+        return cls(tuple(Part(**p) for p in data["parts"]))
+
+    def components(self) -> list[Feature]:
+        """Its shorter prefixes of two parts or more, and its first part where that is a texel."""
+        found: list[Feature] = [Geometric(self.parts[:k]) for k in range(2, len(self.parts))]
+        if self.parts[0].kind == PartKind.TEXEL:
+            found.append(Texel(self.parts[0].vector))
+        return found
+
+    def describe(self) -> str:
+        return "geometric: " + "-".join(p.kind for p in self.parts)
 
 
 @dataclass(frozen=True)
 class _Boolean(Feature):
+    """Two features whose values combine by :meth:`value`; reported where the stronger one is."""
     __hash__ = _CachedHash.__hash__
+    WORD: ClassVar[str] = ""  # its name in legends
     a: Feature
     b: Feature
 
@@ -174,15 +245,44 @@ class _Boolean(Feature):
         return self.a.primitives + self.b.primitives
 
     def to_dict(self) -> dict:
-        return {"type": type(self).__name__.lower(), "a": self.a.to_dict(), "b": self.b.to_dict()}
+        return {"type": self.TYPE, "a": self.a.to_dict(), "b": self.b.to_dict()}
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "_Boolean":
+        return cls(Feature.from_dict(data["a"]), Feature.from_dict(data["b"]))
+
+    def subfeatures(self) -> tuple[Feature, ...]:
+        return self.a, self.b
+
+    @staticmethod
+    def value(a: Tensor, b: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    def combine(self, a: tuple[Tensor, ...], b: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+        take_b = b[0] > a[0]
+        return (self.value(a[0], b[0]), *(torch.where(take_b, fb, fa) for fa, fb in zip(a[1:], b[1:])))
+
+    def describe(self) -> str:
+        return f"{self.WORD}({self.a.describe()}, {self.b.describe()})"
 
 
 class Conjunction(_Boolean):
     """Value = product of the two sub-feature values (3.5.2)."""
+    TYPE, WORD = "conjunction", "and"
+
+    @staticmethod
+    def value(a: Tensor, b: Tensor) -> Tensor:
+        return a * b
 
 
 class Disjunction(_Boolean):
-    """Value = maximum of the two sub-feature values (3.5.2)."""
+    """Value = maximum of the two sub-feature values (3.5.2); its components point to it (4.4.1)."""
+    TYPE, WORD = "disjunction", "or"
+    ARCS_TO_COMPONENTS = False
+
+    @staticmethod
+    def value(a: Tensor, b: Tensor) -> Tensor:
+        return torch.maximum(a, b)
 
 
 CHUNK = 1024  # features per compressed block of a packed table

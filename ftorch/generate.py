@@ -15,10 +15,9 @@ from torch import Tensor
 from .errors import InputError
 from .evaluate import feature_values
 from .features import Geometric, LocalFeature, Part, Texel
-from .record import EDGEL_SLOTS, ImageRecords
-from .salient import EDGEL
-from .sampling import advance, sample_part
-from .steering import rotate_pair, steer
+from .primitives import PartKind
+from .record import ImageRecords
+from .sampling import placements, steered_sample
 
 
 def _choose(candidates: Tensor, generator) -> int | None:
@@ -36,8 +35,8 @@ def _point(records: ImageRecords, n: int, p: int) -> tuple[Tensor, ...]:
     return records.x[n, p], records.y[n, p], records.sigma[n, p], records.theta[n, p]
 
 
-def _part_kind(records: ImageRecords, n: int, p: int) -> str:
-    return "edgel" if int(records.kind[n, p]) == EDGEL else "texel"
+def _part_kind(records: ImageRecords, n: int, p: int) -> PartKind:
+    return PartKind.of_point(int(records.kind[n, p]))
 
 
 def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
@@ -47,16 +46,14 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     kind = _part_kind(records, n, q)
     phi, dtheta = math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0
     d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
-    x, y, sigma, theta = advance(*previous, phi, dtheta, d, dsigma)
+    _, (x, y, sigma, theta) = placements(previous, [(phi, dtheta, d, dsigma)])
     image = torch.tensor([n], device=records.device)
-    sample, _ = sample_part(records, image, x[None], y[None], sigma[None], kind == "edgel")
-    vector = (rotate_pair(sample, theta[None]) if kind == "edgel" else steer(sample, theta[None]))[0]
-    return Part(kind, vector.tolist(), phi, dtheta, d, dsigma)
+    vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
+    return Part(kind, vector[0].tolist(), phi, dtheta, d, dsigma)
 
 
 def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
-    canonical = records.canonical[n, p]
-    return (canonical[EDGEL_SLOTS] if int(records.kind[n, p]) == EDGEL else canonical).tolist()
+    return records.canonical[n, p, _part_kind(records, n, p).slots].tolist()
 
 
 def random_texel(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texel | None:
@@ -80,7 +77,7 @@ def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator 
     second = _choose(edgels[(distance > 0) & (distance <= _default_distance(records, n, max_distance))], generator)
     if second is None:
         return None
-    head = Part("edgel", _own_vector(records, n, first))
+    head = Part(PartKind.EDGEL, _own_vector(records, n, first))
     return Geometric((head, _relative_part(records, n, second, _point(records, n, first))))
 
 
@@ -97,9 +94,7 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     found = feature_values([feature], records[n])
     if not bool(torch.isfinite(found.x[0, 0])):
         return None
-    state = (found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0])
-    for part in feature.parts[1:]:
-        state = advance(*state, part.phi, part.dtheta, part.d, part.dsigma)
+    *_, state = placements((found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0]), feature.attitudes())
     points = records.mask[n].nonzero()[:, 0]
     distance = torch.hypot(records.x[n, points] - state[0], records.y[n, points] - state[1])
     near = points[(distance >= 0.5) & (distance <= _default_distance(records, n, max_distance))].cpu()

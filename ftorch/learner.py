@@ -152,6 +152,18 @@ class DistinctiveFeatureLearner:
         """The generalization options (module docstring), as keyword arguments of the constructor."""
         return {k: getattr(self, k) for k in OPTIONS}
 
+    def set_params(self, **options) -> "DistinctiveFeatureLearner":
+        """Change generalization options, validated as the constructor validates them, and return
+        the learner; e.g. ``set_params(evidence="positive", test_information=0.1)`` answers with
+        another evidence mode and threshold (the robustness benchmark)."""
+        unknown = sorted(set(options) - set(OPTIONS))
+        if unknown:
+            raise InputError(f"unknown learner options {unknown}: expected some of {', '.join(OPTIONS)}")
+        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **{**self.options(), **options})
+        for k in OPTIONS:
+            setattr(self, k, getattr(probe, k))
+        return self
+
     # -- measurement -------------------------------------------------------------------------
     def _measure(self, env: ImageSet, features, images) -> None:
         """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
@@ -218,7 +230,7 @@ class DistinctiveFeatureLearner:
                 cuts, _ = self._discretize(label, net.features)
                 for f, cut in zip(net.features, cuts.tolist()):
                     if np.isfinite(cut):
-                        net.threshold[f] = cut
+                        net.set_threshold(f, cut)
             self._estimate(label)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
@@ -427,7 +439,7 @@ class DistinctiveFeatureLearner:
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
                 continue
-            self._measure(env, candidates + net.features, images)
+            self._measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
             cuts, powers = self._discretize(char, candidates, disc)
             for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
@@ -502,25 +514,14 @@ class DistinctiveFeatureLearner:
             options[k] = _count(options[k])
         for k in ("pseudocount", "cut_position", "test_information"):
             options[k] = _number(options[k])
-        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **options)  # validates them
-        for k in OPTIONS:
-            setattr(self, k, getattr(probe, k))
+        self.set_params(**options)
         self.presentations, self.sampled = _count(state["presentations"]), _count(state["sampled"])
         self.networks = {}
         for record in state["networks"]:
-            net = ClassNetwork(_label(record["label"]))
-            keys = [at(i) for i in record["features"]]
-            if not len(keys) == len(record["parents"]) == len(record["threshold"]) == len(record["cpt"]):
-                raise ValueError(f"network of class {net.label!r}: {len(keys)} features but "
-                                 f"{len(record['parents'])} parent lists, {len(record['threshold'])} thresholds "
-                                 f"and {len(record['cpt'])} CPTs")
-            net.features = keys
-            net.parents = {k: [at(p) for p in ps] for k, ps in zip(keys, record["parents"])}
-            net.threshold = {k: _number(t) for k, t in zip(keys, record["threshold"])}
-            net.prior = np.array([_number(p) for p in record["prior"]], dtype=float)
-            for k, table in zip(keys, record["cpt"]):
-                net.cpt[k] = decode_array(table)
-            net.validate()
+            net = ClassNetwork.of(_label(record["label"]), [at(i) for i in record["features"]],
+                                  [[at(p) for p in ps] for ps in record["parents"]],
+                                  [_number(t) for t in record["threshold"]], [_number(p) for p in record["prior"]],
+                                  [decode_array(table) for table in record["cpt"]])
             if net.label in self.networks:
                 raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net

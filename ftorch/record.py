@@ -20,12 +20,10 @@ from tqdm import tqdm
 
 from .errors import InputError
 from .images import as_image_batch, load_image
-from .salient import BLOB, CORNER, EDGEL, Points, SalientPoints
+from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
+from .salient import Points, SalientPoints
 from .scale_space import ScaleSpace, ScaleSpaceOutput
 from .steering import steer
-
-DESCRIPTOR = 15
-EDGEL_SLOTS = slice(5, 7)
 
 
 def kind_slots(kind: Tensor) -> Tensor:
@@ -207,10 +205,10 @@ class ImageRecords:
         return self.source.device
 
     def texel_mask(self) -> Tensor:
-        return self.mask & ((self.kind == BLOB) | (self.kind == CORNER))
+        return PartKind.TEXEL.mask(self)
 
     def edgel_mask(self) -> Tensor:
-        return self.mask & (self.kind == EDGEL)
+        return PartKind.EDGEL.mask(self)
 
     def counts(self) -> dict[str, list[int]]:
         """Numbers of edgels, blobs and corners per image."""

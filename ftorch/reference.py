@@ -18,7 +18,7 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 from .features import Conjunction, Feature, LocalFeature
 from .record import ImageRecords
 from .kernels import kernel_radius
-from .salient import EDGEL
+from .primitives import EDGEL
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:

@@ -28,9 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .primitives import BLOB, CORNER, EDGEL
 from .scale_space import ScaleSpaceOutput
-
-EDGEL, BLOB, CORNER = 0, 1, 2
 
 
 @dataclass

@@ -1,4 +1,6 @@
-"""Sampling primitive responses from the dense pyramid at any (x, y, sigma) (alg. 3.6 step 4).
+"""Alg. 3.6's placement of a local feature's parts, and sampling their responses from the dense
+pyramid at any (x, y, sigma) (steps 3 and 4): the one implementation that evaluation, generation
+and drawing use (``ftorch.reference`` keeps an independent one, as the test oracle).
 
 Between pixels: bilinear. Between levels: linear in the level index u = 2*log2(sigma) (i.e. in
 log sigma), applied to the scale-normalised responses. A texel at u reads levels u-1, u, u+1;
@@ -10,10 +12,13 @@ the image and the levels it reads exist.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
+
 import torch
 from torch import Tensor
 
 from .record import ImageRecords, Pyramid
+from .steering import rotate_pair, steer
 
 
 def level_index(sigma: Tensor) -> Tensor:
@@ -27,6 +32,25 @@ def advance(x: Tensor, y: Tensor, sigma: Tensor, theta: Tensor, phi, dtheta, d, 
     """Alg. 3.6 step 3: location, scale and orientation of part i from those of part i-1."""
     step = sigma * d
     return x + step * torch.cos(theta + phi), y + step * torch.sin(theta + phi), sigma * dsigma, theta + dtheta
+
+
+def placements(start: tuple, attitudes: Iterable[tuple]) -> Iterator[tuple]:
+    """(x, y, sigma, theta) of every part: the first part's ``start``, then each later part placed
+    from the one before by its attitude (phi, dtheta, d, dsigma) (alg. 3.6 step 3). Attitudes may
+    be numbers or tensors that broadcast with ``start`` (a batch of features at once)."""
+    state = start
+    yield state
+    for attitude in attitudes:
+        state = advance(*state, *attitude)
+        yield state
+
+
+def steered_sample(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor, theta: Tensor,
+                   edgel: bool) -> tuple[Tensor, Tensor]:
+    """A part's responses sampled at (x, y, sigma) (:func:`sample_part`) and steered to theta, so
+    comparable with canonical descriptors (eq. 3.13), and their validity (alg. 3.6 step 4)."""
+    sample, valid = sample_part(records, image, x, y, sigma, edgel)
+    return (rotate_pair(sample, theta) if edgel else steer(sample, theta)), valid
 
 
 def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,

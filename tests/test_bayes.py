@@ -10,8 +10,8 @@ from ftorch.features import Conjunction, Disjunction, Geometric, Part, Texel
 warnings.filterwarnings("ignore", category=FutureWarning)
 
 
-def random_network(rng, n_features: int, deterministic: bool = False) -> ClassNetwork:
-    net = ClassNetwork("c")
+def random_network(rng, n_features: int, deterministic: bool = False, table_limit: int = ClassNetwork.TABLE_LIMIT) -> ClassNetwork:
+    net = ClassNetwork("c", table_limit)
     for i in range(n_features):
         earlier = list(range(i))
         rng.shuffle(earlier)
@@ -26,7 +26,7 @@ def random_network(rng, n_features: int, deterministic: bool = False) -> ClassNe
         p = rng.uniform(0.02, 0.98, size=net.cpt[key].shape[:-1])
         if deterministic:
             p = np.where(rng.random(p.shape) < 0.3, np.round(p), p)
-        net.cpt[key] = np.stack([1 - p, p], axis=-1)
+        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
     return net
 
 
@@ -48,10 +48,10 @@ def information_from(joint: np.ndarray) -> float:
 
 @pytest.mark.parametrize("table_limit", [14, 0], ids=["tables", "einsum"])
 @pytest.mark.parametrize("seed", range(8))
-def test_fast_inference_equals_pgmpy_variable_elimination(seed, table_limit, monkeypatch):
-    monkeypatch.setattr(ClassNetwork, "TABLE_LIMIT", table_limit)
+def test_fast_inference_equals_pgmpy_variable_elimination(seed, table_limit):
     rng = np.random.default_rng(seed)
-    net = random_network(rng, n_features=int(rng.integers(3, 9)))
+    net = random_network(rng, n_features=int(rng.integers(3, 9)), table_limit=table_limit)
+    assert all(g.table is None for g in net.compiled().groups) == (table_limit == 0)
     assert net.to_pgmpy().check_model()
     for _ in range(4):
         observed = [k for k in net.features if rng.random() < 0.5]
@@ -72,7 +72,7 @@ def test_large_linked_groups_take_einsum_and_equal_pgmpy():
     for i in range(17):
         net.add_feature(i, parents=[i - 1] if i else [])
         p = rng.uniform(0.05, 0.95, size=net.cpt[i].shape[:-1])
-        net.cpt[i] = np.stack([1 - p, p], axis=-1)
+        net.set_cpt(i, np.stack([1 - p, p], axis=-1))
     assert len(net.features) > ClassNetwork.TABLE_LIMIT and net.compiled().groups[0].table is None
     evidence = {0: 1, 5: 0, 16: 1}
     np.testing.assert_allclose(net.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
@@ -86,7 +86,7 @@ def test_assigning_a_cpt_or_prior_takes_effect():
     net.add_feature("a")
     net.add_feature("b", parents=["a"])
     before = net.posterior({"b": 1})
-    net.cpt["b"] = np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]])
+    net.set_cpt("b", np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]]))
     assert net.posterior({"b": 1}) == pytest.approx(0.9) and before == pytest.approx(0.5)
     net.prior = np.array([0.75, 0.25])
     assert net.posterior({}) == pytest.approx(0.25)
@@ -105,7 +105,7 @@ def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the
     before = net.evaluate(state)[0]
     net.prior = net.prior[::-1].copy()
     assert len(net.compiled().memo) == 0 and net.evaluate(state)[0] == net.infer(state)[0] != before
-    net.cpt[3] = np.full_like(net.cpt[3], 0.5)
+    net.set_cpt(3, np.full_like(net.cpt[3], 0.5))
     assert len(net.compiled().memo) == 0
     net.add_feature(7, parents=[2])
     longer = np.append(state, -1)
@@ -159,7 +159,7 @@ def test_cycles_and_unknown_arcs_are_refused_and_bif_exports():
     assert "variable class" in bif and "probability ( f1 | class, f0 )" in bif
     assert '<NAME>f1</NAME>' in net.to_xmlbif()
     net.remove_feature("a")
-    assert net.parents["b"] == [] and net.cpt["b"].shape == (2, 2)
+    assert net.parents["b"] == () and net.cpt["b"].shape == (2, 2)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -169,9 +169,35 @@ def test_all_informations_at_once_equal_one_by_one(seed):
     for extra in range(3):  # add arc-free nodes, which take the closed form
         net.add_feature(f"naive{extra}")
         p = rng.uniform(0.05, 0.95, size=2)
-        net.cpt[f"naive{extra}"] = np.stack([1 - p, p], axis=-1)
+        net.set_cpt(f"naive{extra}", np.stack([1 - p, p], axis=-1))
     evidence = {k: int(rng.integers(0, 2)) for k in net.features if rng.random() < 0.4}
     together = net.informations(evidence)
     assert set(together) == {k for k in net.features if k not in evidence}
     for key, info in together.items():
         assert info == pytest.approx(net.mutual_information(key, evidence), abs=1e-12)
+
+
+def test_a_network_changes_only_through_its_methods():
+    """Its tables are read-only views, so nothing outside can leave the compiled inference stale."""
+    net = ClassNetwork("c")
+    net.add_feature("a")
+    net.add_feature("b")
+    with pytest.raises(TypeError):
+        net.cpt["a"] = np.full((2, 2), 0.5)
+    with pytest.raises(TypeError):
+        net.threshold["a"] = 0.3
+    with pytest.raises((TypeError, AttributeError)):
+        net.parents["b"].append("a")
+    with pytest.raises(ValueError, match="read-only"):
+        net.cpt["a"][0, 0] = 0.9
+    before = net.posterior({"b": 1})
+    net.add_arc("a", "b")  # a feature arc; b's CPT returns to 1/2 with a's state as a new axis
+    assert net.parents["b"] == ("a",) and net.cpt["b"].shape == (2, 2, 2) and net.posterior({"b": 1}) == before
+    net.set_cpt("b", np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]]))
+    assert net.posterior({"b": 1}) == pytest.approx(0.9)  # the compiled tables follow
+    with pytest.raises(ValueError, match="shape"):
+        net.set_cpt("b", np.full((2, 2), 0.5))
+    with pytest.raises(ValueError, match="cycle"):
+        net.add_arc("b", "a")
+    net.set_threshold("a", 0.25)
+    assert net.threshold["a"] == 0.25 and net.features == ("a", "b")

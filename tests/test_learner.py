@@ -266,3 +266,11 @@ def test_learning_stops_at_min_information_and_answers_at_test_information(shape
     old = DistinctiveFeatureLearner()
     old.load_state_dict(state)
     assert old.test_information == 0.3 and old.options() == short.options()
+    # set_params: one way to answer with other settings, validated like the constructor
+    assert full.set_params(test_information=0.3) is full and full.options() == short.options()
+    assert [len(full.recognize(shapes, i).queried) for i in range(18, 30)] == asked_short
+    with pytest.raises(InputError, match="test_information must lie in"):
+        full.set_params(test_information=1.5)
+    with pytest.raises(InputError, match="unknown learner options \\['bits'\\]"):
+        full.set_params(bits=0.1)
+    assert full.test_information == 0.3  # a refused change changes nothing

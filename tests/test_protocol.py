@@ -1,6 +1,7 @@
 """The recognition protocol of 4.5: learning a fold, exact resume, checkpoint refusal, reports."""
 import json
 import os
+from dataclasses import replace
 import re
 import subprocess
 import sys
@@ -18,10 +19,10 @@ from ftorch.errors import InputError
 from ftorch.learner import DistinctiveFeatureLearner
 from training import run
 from training.datasets import Task, plym_task
-from training.protocol import Fold, next_target
+from training.protocol import Fold, FoldState, RunConfig, next_target
 from training.report import growth, seed_study
 
-CONFIG = {"task": "plym4", "seed": 0, "n_ex": 5, "n_fgen": 10}
+CONFIG = RunConfig("plym4", seed=0, n_ex=5, n_fgen=10)
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +37,7 @@ def make_fold(task: Task, folder, k: int = 1, incremental: bool = False) -> Fold
     space = FeatureSpace()
     train, test = task.fold(k)
     sets = [ImageSet([task.images[i] for i in idx], [{task.labels[i]} for i in idx], space) for idx in (train, test)]
-    return Fold(k, *sets, dict(CONFIG, classes=task.classes()), folder, task.classes(), progress=False,
+    return Fold(k, *sets, replace(CONFIG, classes=task.classes()), folder, task.classes(), progress=False,
                 incremental=incremental)
 
 
@@ -92,12 +93,12 @@ def test_damaged_foreign_and_mismatched_checkpoints_are_refused(small_task, tmp_
     with pytest.raises(InputError, match="not an ftorch checkpoint"):
         fold.run(max_cycles=1, resume=True)
     fold.checkpoint.write_text(text)
-    fold.config = dict(fold.config, seed=1)
+    fold.config = replace(fold.config, seed=1)
     with pytest.raises(InputError, match="different run configuration"):
         fold.run(max_cycles=1, resume=True)
     with pytest.raises(InputError, match="kind 'learner', expected 'fold'"):
         (tmp_path / "learner.json").replace(fold.checkpoint)
-        fold.config = dict(fold.config, seed=0)
+        fold.config = replace(fold.config, seed=0)
         fold.run(max_cycles=1, resume=True)
     broken = json.loads(fold.checkpoint.read_text())
     del broken["learner"]["networks"]
@@ -282,3 +283,16 @@ def test_seeds_and_incremental_commands(tmp_path, capsys):
     markdown = (tmp_path / "i" / "report.md").read_text()
     assert "figure 5.13 form" in markdown and "incremental, alg. 5.4" in markdown
     check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0])
+
+
+def test_the_run_config_defaults_to_the_library_learner_and_the_fold_state_is_checked():
+    learner = RunConfig("t").learner(3)
+    assert learner.options() == DistinctiveFeatureLearner().options()
+    assert (learner.n_ex, learner.n_fgen, learner.min_information) == (5, 10, 0.0)
+    assert RunConfig("t", seed=2).fold_seed(3) == 2003
+    state = FoldState(phase=1, added=[{"classes": 3}])
+    assert FoldState.from_dict(json.loads(json.dumps(state.to_dict()))) == state
+    with pytest.raises(ValueError, match="progress fields"):
+        FoldState.from_dict({**state.to_dict(), "extra": 1})
+    with pytest.raises(ValueError, match="t_KSD"):
+        FoldState.from_dict({**state.to_dict(), "t_ksd": 2.0})

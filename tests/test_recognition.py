@@ -38,13 +38,13 @@ def two_class_networks():
     a = ClassNetwork("A")
     a.add_feature("a", threshold=0.5)
     a.prior = np.array([0.5, 0.5])
-    a.cpt["a"] = np.array([[1.0, 0.0], [0.0, 1.0]])
+    a.set_cpt("a", np.array([[1.0, 0.0], [0.0, 1.0]]))
     b = ClassNetwork("B")
     b.add_feature("b", threshold=0.5)
     b.add_feature("bb", threshold=0.7)
     b.prior = np.array([0.6, 0.4])
-    b.cpt["b"] = np.array([[0.8, 0.2], [0.3, 0.7]])
-    b.cpt["bb"] = np.array([[1.0, 0.0], [0.0, 1.0]])
+    b.set_cpt("b", np.array([[0.8, 0.2], [0.3, 0.7]]))
+    b.set_cpt("bb", np.array([[1.0, 0.0], [0.0, 1.0]]))
     return {"A": a, "B": b}
 
 
@@ -62,7 +62,7 @@ def test_recognition_queries_by_information_and_stops_when_certain():
 
 def test_negative_evidence_counts_and_impossible_evidence_is_skipped():
     nets = two_class_networks()
-    nets["B"].cpt["bb"] = np.array([[1.0, 0.0], [0.5, 0.5]])  # 'bb' never present without B
+    nets["B"].set_cpt("bb", np.array([[1.0, 0.0], [0.5, 0.5]]))  # 'bb' never present without B
     result = recognize(nets, lambda f: {"a": 0.1, "b": 0.9, "bb": 0.1}[f])
     assert result.posteriors["A"] == 0.0  # absence of a perfect feature rules A out
     expected = nets["B"].posterior({"bb": 0, "b": 1})
@@ -73,7 +73,7 @@ def network(label: str, cpt, *features: str) -> ClassNetwork:
     net = ClassNetwork(label)
     for key in features:
         net.add_feature(key, threshold=0.5)
-        net.cpt[key] = np.array(cpt, dtype=float)
+        net.set_cpt(key, np.array(cpt, dtype=float))
     net.prior = np.array([0.5, 0.5])
     return net
 

@@ -3,7 +3,7 @@ import math
 
 import torch
 
-from ftorch import BLOB, EDGEL, FeatureSpace
+from ftorch import BLOB, EDGEL, FeatureSpace, PartKind
 from ftorch.kernels import kernel_radius
 from ftorch.steering import steer
 
@@ -78,3 +78,18 @@ def test_records_of_mixed_sizes_keep_input_order():
     n = int(alone.mask[0].sum())
     assert torch.equal(joined.x[1, :n], alone.x[0, :n]) and not joined.mask[1, n:].any()
     assert torch.equal(joined.responses[1, : alone.responses.shape[1], :, :56, :48], alone.responses[0])
+
+
+def test_part_kinds_partition_the_salient_points_and_name_their_descriptor_slots():
+    records = FeatureSpace()(random_image(64, 64, seed=7))
+    texels, edgels = PartKind.TEXEL.mask(records), PartKind.EDGEL.mask(records)
+    assert bool(texels.any()) and bool(edgels.any())
+    assert torch.equal(texels | edgels, records.mask) and not bool((texels & edgels).any())
+    for p in records.mask[0].nonzero()[:, 0].tolist():
+        kind = PartKind.of_point(int(records.kind[0, p]))
+        assert bool(kind.mask(records)[0, p]) and int(records.kind[0, p]) in kind.codes
+        outside = torch.ones(15, dtype=torch.bool)
+        outside[kind.slots] = False
+        assert not records.descriptors[0, p, outside].any() and len(records.descriptors[0, p, kind.slots]) == kind.size
+    assert (PartKind.TEXEL.size, PartKind.EDGEL.size) == (15, 2)
+    assert PartKind("edgel") is PartKind.EDGEL and hash(PartKind.EDGEL) == hash("edgel") and f"{PartKind.TEXEL}" == "texel"

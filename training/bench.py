@@ -179,19 +179,19 @@ def features(args) -> dict:
     return report
 
 
-def learned_like_network(rng: np.random.Generator) -> ClassNetwork:
+def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwork.TABLE_LIMIT) -> ClassNetwork:
     """16 nodes: G2 <- G3 <- G4 (geometric chain, G4 -> G2 too), C -> {T, G2}, {a, b} -> D, 9 arc-free."""
-    net = ClassNetwork("bench")
+    net = ClassNetwork("bench", table_limit)
     structure = [("G2", []), ("G3", ["G2"]), ("G4", ["G3", "G2"]), ("T", []), ("C", []), ("a", []), ("b", []),
                  ("D", ["a", "b"])] + [(f"n{i}", []) for i in range(8)]
     for key, children in structure:
         net.add_feature(key, children=children)
     net.add_feature("n8")
-    net.parents["T"].append("C")
-    net.parents["G2"].append("C")
+    net.add_arc("C", "T")
+    net.add_arc("C", "G2")
     for key in net.features:
         p = rng.uniform(0.02, 0.98, size=(2,) * (len(net.parents[key]) + 1))
-        net.cpt[key] = np.stack([1 - p, p], axis=-1)
+        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
     net.prior = np.array([0.7, 0.3])
     return net
 
@@ -201,9 +201,7 @@ def recognition(args) -> dict:
 
     rng = np.random.default_rng(0)
     net = learned_like_network(rng)
-    einsum = learned_like_network(np.random.default_rng(0))
-    einsum.TABLE_LIMIT = 0
-    einsum._compiled = None
+    einsum = learned_like_network(np.random.default_rng(0), table_limit=0)
     n = len(net.features)
     states = [np.where(rng.random(n) < 0.4, rng.integers(0, 2, n), -1) for _ in range(200 if args.quick else 1000)]
     device = torch.device("cpu")

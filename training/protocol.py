@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -91,19 +91,86 @@ def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recogni
             "sampled": learner.sampled}
 
 
-def _checked_state(state: dict) -> dict:
-    """A fold's progress as read from a checkpoint; ValueError where a field has the wrong type or range."""
-    state = dict(state)
-    counts = ("phase", "stage", "misses", "total_cycles", "sampled_before")
-    if any(isinstance(state[k], bool) or not isinstance(state[k], int) or state[k] < 0 for k in counts):
-        raise ValueError(f"progress counts {[state[k] for k in counts]} must be integers >= 0")
-    if not (isinstance(state["t_ksd"], (int, float)) and 0.0 <= state["t_ksd"] <= 1.0):
-        raise ValueError(f"t_KSD {state['t_ksd']!r} outside [0, 1]")
-    if not (isinstance(state["seconds"], (int, float)) and 0.0 <= state["seconds"] < math.inf):
-        raise ValueError(f"seconds {state['seconds']!r} is not a duration")
-    if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
-        raise ValueError("done must be true or false, and cycles, stages and added lists")
-    return state
+@dataclass(frozen=True)
+class RunConfig:
+    """A run's settings, as its report and every fold checkpoint record them (a fold resumes only
+    under the same). The learner's settings default to the library's (the thesis's); the
+    runner gives every field."""
+
+    task: str
+    data: str | None = None
+    classes: list = field(default_factory=list)
+    views: int = 20
+    first_view: int = 0
+    size: int | None = None
+    seed: int = 0
+    n_ex: int = 5
+    n_fgen: int = 10
+    min_information: float = 0.0
+    search_rounds: int = 1
+    redundancy: int = 1
+    evidence: str = "both"
+    pseudocount: float = 0.0
+    cut_position: float = 0.5
+    test_information: float = 0.0
+    device: str = "cpu"
+    stages: str = "0"
+    max_cycles: int = 20
+    augment: int = 0
+    incremental: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def fold_seed(self, fold: int) -> int:
+        """Fold k of a run with seed S seeds its learner and its presentation order with 1000 S + k."""
+        return self.seed * 1000 + fold
+
+    def learner(self, fold: int) -> DistinctiveFeatureLearner:
+        """A fresh learner for fold ``fold`` with these settings."""
+        return DistinctiveFeatureLearner(self.n_ex, self.n_fgen, seed=self.fold_seed(fold),
+                                         min_information=self.min_information, **{k: getattr(self, k) for k in OPTIONS})
+
+
+@dataclass
+class FoldState:
+    """A fold's progress, which its checkpoint stores beside the learner: the incremental phase
+    (classes taught = phase + 2), the stage within it and its t_KSD, the current stage's cycles,
+    the finished stages' report entries, targets missed in a row, whether the fold is done, the
+    cycles and seconds so far, and figure 5.13's entries per added class with the features
+    sampled before the current class."""
+
+    phase: int = 0
+    stage: int = 0
+    t_ksd: float = 0.0
+    cycles: list = field(default_factory=list)
+    stages: list = field(default_factory=list)
+    misses: int = 0
+    done: bool = False
+    total_cycles: int = 0
+    seconds: float = 0.0
+    added: list = field(default_factory=list)
+    sampled_before: int = 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, state: dict) -> "FoldState":
+        """The progress read from a checkpoint; ValueError where a field is missing or has the wrong type or range."""
+        names = [f.name for f in fields(cls)]
+        if not isinstance(state, dict) or sorted(state) != sorted(names):
+            raise ValueError(f"progress fields {sorted(state) if isinstance(state, dict) else state!r}, expected {names}")
+        counts = ("phase", "stage", "misses", "total_cycles", "sampled_before")
+        if any(isinstance(state[k], bool) or not isinstance(state[k], int) or state[k] < 0 for k in counts):
+            raise ValueError(f"progress counts {[state[k] for k in counts]} must be integers >= 0")
+        if not (isinstance(state["t_ksd"], (int, float)) and 0.0 <= state["t_ksd"] <= 1.0):
+            raise ValueError(f"t_KSD {state['t_ksd']!r} outside [0, 1]")
+        if not (isinstance(state["seconds"], (int, float)) and 0.0 <= state["seconds"] < math.inf):
+            raise ValueError(f"seconds {state['seconds']!r} is not a duration")
+        if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
+            raise ValueError("done must be true or false, and cycles, stages and added lists")
+        return cls(**state)
 
 
 @dataclass
@@ -113,7 +180,7 @@ class Fold:
     fold: int
     train: ImageSet
     test: ImageSet
-    config: dict
+    config: RunConfig
     folder: Path
     classes: list
     progress: bool = True
@@ -136,20 +203,20 @@ class Fold:
     def checkpoint(self) -> Path:
         return self.folder / "checkpoint.json"
 
-    def _save(self, learner, order, state: dict):
+    def _save(self, learner, order, state: FoldState):
         """The checkpoint: features stored once for the value cache and the learner, the cache's
         first (it only grows, so its packed blocks are reused from the last checkpoint)."""
         table = FeatureTable()
         cache = self.train.cache_state(table)
         learned = learner.state_dict(table=table)
         save_checkpoint(self.checkpoint, FOLD_KIND, {
-            "config": self.config, "fold": self.fold, "state": state,
+            "config": self.config.to_dict(), "fold": self.fold, "state": state.to_dict(),
             "order": encode_array(order.get_state().numpy().astype(np.float64)),
             "features": table.pack(), "learner": learned, "cache": cache})
 
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
-        if data.get("config") != self.config or data.get("fold") != self.fold:
+        if data.get("config") != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")
         learner = DistinctiveFeatureLearner()
@@ -159,7 +226,7 @@ class Fold:
             learner.load_state_dict(data["learner"], features)
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
             self.train.load_cache_state(data["cache"], features)
-            state = _checked_state(data["state"])
+            state = FoldState.from_dict(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
@@ -170,40 +237,36 @@ class Fold:
         ``INCREMENTAL_LIMIT`` expert stages) and test after each; returns the fold's report entry
         and the learner (also saved as learner.json). ``after_cycle(n)`` is called after the n-th
         cycle's checkpoint is written."""
-        seed = self.config["seed"] * 1000 + self.fold
         if resume and self.checkpoint.is_file():
             learner, order, state = self._resume()
         else:
-            learner = DistinctiveFeatureLearner(self.config["n_ex"], self.config["n_fgen"], seed=seed,
-                                                min_information=self.config.get("min_information", 0.0),
-                                                **{k: self.config[k] for k in OPTIONS if k in self.config})
-            order = torch.Generator().manual_seed(seed)
-            state = {"phase": 0, "stage": 0, "t_ksd": 0.0, "cycles": [], "stages": [], "misses": 0, "done": False,
-                     "total_cycles": 0, "seconds": 0.0, "added": [], "sampled_before": 0}
-        start = time.perf_counter() - state["seconds"]
+            learner = self.config.learner(self.fold)
+            order = torch.Generator().manual_seed(self.config.fold_seed(self.fold))
+            state = FoldState()
+        start = time.perf_counter() - state.seconds
         limit = AUTO_LIMIT if stages is None else stages + 1
         if self.incremental:
             limit = min(limit, INCREMENTAL_LIMIT + 1)
         with tqdm(desc=f"fold {self.fold}", unit="cycle", disable=not self.progress, leave=False) as bar:
-            while not state["done"]:
-                cycles = state["cycles"]
+            while not state.done:
+                cycles = state.cycles
                 if cycles and (cycles[-1]["mistakes"] == 0 or len(cycles) >= max_cycles):
                     self._finish_stage(learner, state, start, stages, limit)
                 else:
-                    cycles.append(self._cycle(learner, order, state["t_ksd"], self._indices(self.train, state["phase"])))
-                    state["total_cycles"] += 1
+                    cycles.append(self._cycle(learner, order, state.t_ksd, self._indices(self.train, state.phase)))
+                    state.total_cycles += 1
                     bar.update(1)
-                    bar.set_postfix(stage=state["stage"], t_ksd=state["t_ksd"], mistakes=cycles[-1]["mistakes"],
+                    bar.set_postfix(stage=state.stage, t_ksd=state.t_ksd, mistakes=cycles[-1]["mistakes"],
                                     features=cycles[-1]["features"])
-                    self._log_cycle(state["total_cycles"], cycles[-1])
-                state["seconds"] = time.perf_counter() - start
+                    self._log_cycle(state.total_cycles, cycles[-1])
+                state.seconds = time.perf_counter() - start
                 self._save(learner, order, state)
-                if after_cycle is not None and not state["done"] and len(state["cycles"]):
-                    after_cycle(state["total_cycles"])
+                if after_cycle is not None and not state.done and len(state.cycles):
+                    after_cycle(state.total_cycles)
         learner.save(self.folder / "learner.json")
-        entry = {"fold": self.fold, "stages": state["stages"]}
+        entry = {"fold": self.fold, "stages": state.stages}
         if self.incremental:
-            entry["added"] = state["added"]
+            entry["added"] = state.added
         return entry, learner
 
     def _cycle(self, learner: DistinctiveFeatureLearner, order: torch.Generator, t_ksd: float, indices: list[int]) -> dict:
@@ -221,15 +284,15 @@ class Fold:
                 "ksd_min": ksd_min, "discarded": len(discarded),
                 "features": sum(len(n.features) for n in learner.networks.values())}
 
-    def _finish_stage(self, learner, state: dict, start: float, stages: int | None, limit: int) -> None:
-        cycles, t, taught = state["cycles"], state["t_ksd"], self.taught(state["phase"])
+    def _finish_stage(self, learner, state: FoldState, start: float, stages: int | None, limit: int) -> None:
+        cycles, t, taught = state.cycles, state.t_ksd, self.taught(state.phase)
         learned = cycles[-1]["mistakes"] == 0
         ksd_min = cycles[-1]["ksd_min"]
         met = learned and ksd_min >= t
-        tested = self._indices(self.test, state["phase"])
+        tested = self._indices(self.test, state.phase)
         recognitions = learner.recognize_many(self.test, tested)
         labels = [self.test.labels[i] for i in tested]
-        stage = {"stage": state["stage"], "step": len(state["stages"]), "classes": len(taught), "t_ksd": t,
+        stage = {"stage": state.stage, "step": len(state.stages), "classes": len(taught), "t_ksd": t,
                  "cycles": len(cycles), "presentations": learner.presentations,
                  "train_learned": learned, "ksd_min": ksd_min, "target_met": met,
                  "mistakes_per_cycle": [c["mistakes"] for c in cycles],
@@ -239,28 +302,28 @@ class Fold:
                  "features": feature_block(learner, recognitions),
                  "confusion": confusion(recognitions, labels, taught, learner.networks),
                  "seconds": time.perf_counter() - start}
-        state["stages"].append(stage)
+        state.stages.append(stage)
         self._log_stage(stage)
-        state["misses"] = 0 if met else state["misses"] + 1
-        in_phase = state["stage"] + 1
-        phase_done = (stages is None and (t >= 1.0 or state["misses"] >= 2)) or in_phase >= limit
-        state["stage"] += 1
-        state["t_ksd"] = next_target(t, ksd_min)
-        state["cycles"] = []
+        state.misses = 0 if met else state.misses + 1
+        in_phase = state.stage + 1
+        phase_done = (stages is None and (t >= 1.0 or state.misses >= 2)) or in_phase >= limit
+        state.stage += 1
+        state.t_ksd = next_target(t, ksd_min)
+        state.cycles = []
         if phase_done and self.incremental:
             self._class_added(learner, state)
-        if phase_done and state["phase"] + 1 < self.phases:
-            state.update(phase=state["phase"] + 1, stage=0, t_ksd=0.0, misses=0)
+        if phase_done and state.phase + 1 < self.phases:
+            state.phase, state.stage, state.t_ksd, state.misses = state.phase + 1, 0, 0.0, 0
         else:
-            state["done"] = phase_done
+            state.done = phase_done
 
-    def _class_added(self, learner, state: dict) -> None:
+    def _class_added(self, learner, state: FoldState) -> None:
         """Figure 5.13: features sampled and stages taken to learn the newest class (both first classes at phase 0)."""
-        taught = self.taught(state["phase"])
-        entry = {"classes": len(taught), "class": taught[-1], "sampled": learner.sampled - state["sampled_before"],
-                 "stages": state["stage"]}
-        state["added"].append(entry)
-        state["sampled_before"] = learner.sampled
+        taught = self.taught(state.phase)
+        entry = {"classes": len(taught), "class": taught[-1], "sampled": learner.sampled - state.sampled_before,
+                 "stages": state.stage}
+        state.added.append(entry)
+        state.sampled_before = learner.sampled
         if self.logger is not None:
             self.logger.add_scalar("incremental/sampled_for_class", entry["sampled"], entry["classes"])
             self.logger.add_scalar("incremental/stages_for_class", entry["stages"], entry["classes"])

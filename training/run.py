@@ -49,7 +49,7 @@ from training.datasets import Task, load_task
 from training.devices import resolve_device
 from training.outputs import run_folder, writable_folder
 from training.parallel import TasksFailed, run_tasks
-from training.protocol import Fold, confusion, feature_block, test_block
+from training.protocol import Fold, RunConfig, confusion, feature_block, test_block
 from training.curves import write_curves
 from training.grasping.command import add_parser as add_grasp_parser
 from training.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
@@ -222,13 +222,12 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
     return entry, fold, learner, pictures
 
 
-def run_config(args, task: Task, seed: int, incremental: bool) -> dict:
-    return {"task": task.name, "data": str(Path(args.data).resolve()) if args.data else None,
-            "classes": task.classes(), "views": args.views, "first_view": args.first_view,
-            "size": 64 if args.size is None and task.name == "plym" else args.size, "seed": seed,
-            "n_ex": args.n_ex, "n_fgen": args.n_fgen, "min_information": args.min_information,
-            **learner_options(args), "device": str(resolve_device(args.device)), "stages": args.stages,
-            "max_cycles": args.max_cycles, "augment": args.augment, "incremental": incremental}
+def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
+    return RunConfig(task.name, str(Path(args.data).resolve()) if args.data else None, task.classes(), args.views,
+                     args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
+                     args.n_ex, args.n_fgen, args.min_information, **learner_options(args),
+                     device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
+                     augment=args.augment, incremental=incremental)
 
 
 def learner_options(args) -> dict:
@@ -236,11 +235,11 @@ def learner_options(args) -> dict:
     return {k: getattr(args, k) for k in OPTIONS}
 
 
-def log_run(writer, config: dict, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
+def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
     """Hyper-parameters with the final results (add_hparams, in the fold's own run) and the
     learned features as images (figure 5.2)."""
     final = entry["stages"][-1]
-    hparams = {k: v for k, v in config.items() if isinstance(v, (int, float, str, bool))}
+    hparams = {k: v for k, v in config.to_dict().items() if isinstance(v, (int, float, str, bool))}
     metrics = {"hparam/accuracy": final["test"]["accuracy"], "hparam/correct": final["test"]["correct"],
                "hparam/features": final["features"]["bn"], "hparam/queried": final["features"]["queried"],
                "hparam/stages": len(entry["stages"])}
@@ -323,7 +322,7 @@ def recognize_command(args, incremental: bool = False) -> int:
         runs = [folds[0]] + [r["entry"] for r in results[args.folds:]]
         seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
     seconds = time.perf_counter() - start
-    report = build_report(run_config(args, task, args.seed, incremental), str(device), seconds, folds, seeds)
+    report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), seconds, folds, seeds)
     if args.peers:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
     write_json(out / "report.json", report)
@@ -396,13 +395,12 @@ def robustness_command(args) -> int:
         raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     start = time.perf_counter()
     space = FeatureSpace().to(device)
+    answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
+    if args.test_information is not None:
+        answering["test_information"] = args.test_information
     results = []
     for k in folds:
-        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json")
-        if args.evidence != "learned":
-            learner.evidence = args.evidence
-        if args.test_information is not None:
-            learner.test_information = args.test_information
+        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json").set_params(**answering)
         results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
     result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
               "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
