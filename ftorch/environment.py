@@ -1,10 +1,7 @@
-"""The task environment the learner acts in (4.4): labelled images, their records and feature values.
+"""The task environment the learner acts in (4.4): labelled images and their records.
 
-Feature values are cached: each (feature, image) value is computed once, in one batch with the
-other values missing at that call, and never recomputed. A call for one image (a recognition)
-computes its missing features on all images of the set. Batched float arithmetic may differ
-in the last bit with the batch's composition, so this rule is what makes a run reproducible and
-resumable bit for bit: the cache is part of a run's state (:meth:`ImageSet.cache_state`).
+Feature values come through the set's :class:`~ftorch.value_cache.ValueCache`, which computes
+each value once and is part of a run's state (:meth:`ImageSet.cache_state`).
 """
 from __future__ import annotations
 
@@ -14,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checkpoint import decode_array, encode_array, stored_position
 from .errors import InputError
 from .evaluate import feature_values
-from .features import Feature, FeatureTable, unpack_features
+from .features import Feature, FeatureTable
 from .images import as_image_batch, load_image
 from .record import FeatureSpace, ImageRecords
+from .value_cache import ValueCache
 
 
 class ImageSet:
@@ -51,8 +48,7 @@ class ImageSet:
                 records = self.space.records(self.images, progress=progress, names=sources)
         self.all_records = records
         self._single: dict[int, ImageRecords] = {}
-        self._row: dict[Feature, int] = {}
-        self._cache = np.zeros((0, len(self.labels)))
+        self._cache = ValueCache(len(self.labels))
 
     @staticmethod
     def _grey(item, name: str) -> torch.Tensor:
@@ -75,30 +71,14 @@ class ImageSet:
     def records(self, images: Sequence[int]) -> ImageRecords:
         return self.all_records[torch.tensor(list(images), device=self.all_records.device)]
 
+    @property
+    def cache(self) -> ValueCache:
+        """These images' feature values, each computed once (:class:`ValueCache`)."""
+        return self._cache
+
     def values(self, features: Sequence[Feature], images: Sequence[int]) -> np.ndarray:
-        """Feature values (F, len(images)), eq. 3.14: cached ones as they are, missing ones in one batch."""
-        features, images = list(features), list(images)
-        for f in features:
-            if f not in self._row:
-                self._row[f] = len(self._row)
-        if len(self._row) > len(self._cache):
-            grown = np.full((max(len(self._row), 2 * len(self._cache)), len(self)), np.nan)
-            grown[: len(self._cache)] = self._cache
-            self._cache = grown
-        rows = np.array([self._row[f] for f in features], dtype=np.int64)
-        block = self._cache[np.ix_(rows, images)]
-        missing = [features[j] for j in np.flatnonzero(np.isnan(block).any(1))]
-        if missing:
-            missing = list(dict.fromkeys(missing))
-            # one image asked for (a recognition): measure the missing features on every image at
-            # once, since recognizing the others will ask for them too and a batch costs far less
-            batch = list(range(len(self))) if len(images) == 1 else images
-            computed = self._compute(missing, batch)
-            for f, row in zip(missing, computed):
-                current = self._cache[self._row[f], batch]
-                self._cache[self._row[f], batch] = np.where(np.isnan(current), row, current)
-            block = self._cache[np.ix_(rows, images)]
-        return block
+        """Feature values (F, len(images)), eq. 3.14, through the cache."""
+        return self._cache.values(features, images, self._compute)
 
     def _compute(self, features: list[Feature], images: list[int]) -> np.ndarray:
         if len(images) == 1:
@@ -108,31 +88,12 @@ class ImageSet:
         return feature_values(features, records).values.double().cpu().numpy()
 
     def cache_state(self, table: FeatureTable | None = None) -> dict:
-        """The value cache as JSON-ready data: the features, by position in ``table`` (or in a
-        table of its own, written as "table"), and the exact values."""
-        own = table is None
-        table = FeatureTable() if own else table
-        features = list(self._row)  # in row order: rows are only ever added
-        state = {"features": [table.index(f) for f in features], "values": encode_array(self._cache[: len(features)])}
-        if own:
-            state["table"] = table.pack()
-        return state
+        """The value cache as JSON-ready data (:meth:`ValueCache.state_dict`)."""
+        return self._cache.state_dict(table)
 
     def load_cache_state(self, state: dict, features: list[Feature] | None = None) -> None:
-        """Restore a cache written by :meth:`cache_state` for this same image set (``features``:
-        the table it was written against, where the caller kept one)."""
-        try:
-            known = unpack_features(state["table"]) if features is None else features
-            features = [known[stored_position(i, len(known))] for i in state["features"]]
-            table = decode_array(state["values"])
-        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
-            raise InputError(f"value cache is damaged: {err}") from None
-        if table.shape != (len(features), len(self)):
-            raise InputError(f"value cache holds {table.shape}, expected ({len(features)}, {len(self)}) for this image set")
-        if not np.all(np.isnan(table) | ((table >= 0) & (table <= 1 + 1e-6))):  # NaN: not yet measured
-            raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
-        self._row = {f: i for i, f in enumerate(features)}
-        self._cache = table
+        """Restore a cache written by :meth:`cache_state` for this same image set (:meth:`ValueCache.load_state_dict`)."""
+        self._cache.load_state_dict(state, features)
 
     def examples(self, label: Hashable, n: int, generator: torch.Generator) -> list[int]:
         """Up to n distinct random images whose true classes include ``label``."""

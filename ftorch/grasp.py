@@ -58,6 +58,7 @@ from .errors import InputError
 from .evaluate import feature_values
 from .features import Feature
 from .generate import expand_geometric, random_edgel_pair
+from .instances import GrowingTable
 from .ksd import ksd
 from .record import ImageRecords
 from .vonmises import VonMisesMixture, fit_mixtures
@@ -129,14 +130,62 @@ class GraspFeatureSet:
         self._first_row: list[int] = []  # per source
         self._batch: ImageRecords | None = None
         self._measured: tuple | None = None  # (records, values, thetas) of the last measure; None once features change
-        self.values = np.zeros((0, 0))
-        self.thetas = np.zeros((0, 0))
-        self.theta_H = np.zeros(0)
-        self.mu0 = np.zeros(0)
-        self.period = np.zeros(0)
+        self._values = GrowingTable(fill=0.0)  # (instances, features): each feature's value in each image
+        self._thetas = GrowingTable(fill=0.0)  # ... and its orientation theta_f, NaN where it found no point
+        self._outcomes = GrowingTable(3, fill=0.0)  # per instance: theta_H, mu_0 (capped), symmetry period
         self.quality = np.zeros((4, 0))  # per feature: KSD, cut-point, E[mu_0] above and below it ("quality")
         self.grasps = 0
         self.sampled = 0
+
+    @classmethod
+    def from_instances(cls, fingers: int, features: list[Feature], values, thetas, theta_H, mu0, period) -> GraspFeatureSet:
+        """A set of ``features`` without models over given instances (values and thetas (n, F); theta_H,
+        mu_0 and period (n,)): for analyses and tests that study alg. 6.1 on chosen measurements."""
+        feature_set = cls(fingers)
+        n, width = np.shape(values)
+        if np.shape(thetas) != (n, width) or len(features) != width or any(np.shape(a) != (n,) for a in (theta_H, mu0, period)):
+            raise InputError(f"from_instances: values and thetas must be (n, {len(features)}) and theta_H, mu0, period (n,)")
+        feature_set.features = list(features)
+        feature_set.models, feature_set.born, feature_set.used = [None] * width, [0] * width, [-1] * width
+        feature_set.quality = np.zeros((4, width))
+        feature_set.images = list(range(n))
+        feature_set._values.add_columns(np.zeros((0, width)))
+        feature_set._thetas.add_columns(np.zeros((0, width)))
+        feature_set._values.add_rows(values)
+        feature_set._thetas.add_rows(thetas)
+        feature_set._outcomes.add_rows(np.stack([theta_H, np.minimum(mu0, MU0_CAP), period], 1))
+        return feature_set
+
+    @staticmethod
+    def _read_only(array: np.ndarray) -> np.ndarray:
+        view = array.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def values(self) -> np.ndarray:
+        """(instances, features): each feature's value on each distinct image (read-only)."""
+        return self._read_only(self._values.array)
+
+    @property
+    def thetas(self) -> np.ndarray:
+        """(instances, features): each feature's orientation theta_f, NaN where it found no point (read-only)."""
+        return self._read_only(self._thetas.array)
+
+    @property
+    def theta_H(self) -> np.ndarray:
+        """(instances,): the final hand orientation of each grasp (read-only)."""
+        return self._read_only(self._outcomes.array[:, 0])
+
+    @property
+    def mu0(self) -> np.ndarray:
+        """(instances,): each grasp's mu_0, capped at MU0_CAP (read-only)."""
+        return self._read_only(self._outcomes.array[:, 1])
+
+    @property
+    def period(self) -> np.ndarray:
+        """(instances,): each object's symmetry period (read-only)."""
+        return self._read_only(self._outcomes.array[:, 2])
 
     def __len__(self) -> int:
         return len(self.features)
@@ -149,7 +198,7 @@ class GraspFeatureSet:
         source = self._source_index.get(id(records))
         if source is not None and self._sources[source] is records:
             row = self._first_row[source]
-            return self.values[row:row + 1], self.thetas[row:row + 1]
+            return self.values[row:row + 1].copy(), self.thetas[row:row + 1].copy()
         last = self._measured
         if last is not None and last[0] is records:
             return last[1], last[2]
@@ -235,11 +284,9 @@ class GraspFeatureSet:
             self._sources.append(records)
             self._first_row.append(len(self.images) - 1)
         self._source_of_row.append(self._source_index[id(records)])
-        self.values = np.vstack([self.values, values[None, :]])
-        self.thetas = np.vstack([self.thetas, thetas[None, :]])
-        self.theta_H = np.append(self.theta_H, experience.theta_H)
-        self.mu0 = np.append(self.mu0, min(experience.mu0, MU0_CAP))
-        self.period = np.append(self.period, experience.period)
+        self._values.add_rows(values[None, :])
+        self._thetas.add_rows(thetas[None, :])
+        self._outcomes.add_rows([[experience.theta_H, min(experience.mu0, MU0_CAP), experience.period]])
 
     def add_features(self, features: list[Feature]) -> None:
         """New features, measured at once on every distinct image of the instance list."""
@@ -251,11 +298,11 @@ class GraspFeatureSet:
                 self._batch = ImageRecords.cat(self._sources)
             found = feature_values(features, self._batch)
             rows = self._source_of_row
-            self.values = np.hstack([self.values, found.values.double().cpu().numpy().T[rows]])
-            self.thetas = np.hstack([self.thetas, found.theta.double().cpu().numpy().T[rows]])
+            self._values.add_columns(found.values.double().cpu().numpy().T[rows])
+            self._thetas.add_columns(found.theta.double().cpu().numpy().T[rows])
         else:
-            self.values = np.zeros((0, len(self.features) + len(features)))
-            self.thetas = np.zeros((0, len(self.features) + len(features)))
+            self._values.add_columns(np.zeros((0, len(features))))
+            self._thetas.add_columns(np.zeros((0, len(features))))
         self.features += features
         self._measured = None
         self.models += [None] * len(features)
@@ -271,7 +318,9 @@ class GraspFeatureSet:
         if dropped:
             for name in ("features", "models", "born", "used"):
                 setattr(self, name, [getattr(self, name)[j] for j in keep])
-            self.values, self.thetas, self.quality = self.values[:, keep], self.thetas[:, keep], self.quality[:, keep]
+            self._values.keep_columns(keep)
+            self._thetas.keep_columns(keep)
+            self.quality = self.quality[:, keep]
             self._measured = None
         return dropped
 

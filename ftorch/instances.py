@@ -1,14 +1,59 @@
-"""The instance list (4.4.1): every probability the learner uses is counted from it.
+"""Instance tables (4.4.1, 6.4): the learners count every probability from them.
 
-One row per distinct image (an image's feature values never change, so presenting it again
-adds no information), holding its true classes and the values of the features measured on it
-so far; values not measured are NaN and are left out of every count.
+:class:`InstanceList` is the recognition learner's: one row per distinct image (an image's
+feature values never change, so presenting it again adds no information), holding its true
+classes and the values of the features measured on it so far; values not measured are NaN and
+are left out of every count. Both it and the grasp learner's tables grow in rows and columns
+through :class:`GrowingTable`, which doubles its store instead of copying on every row.
 """
 from __future__ import annotations
 
 from collections.abc import Hashable, Iterable
 
 import numpy as np
+
+
+class GrowingTable:
+    """A 2-D float64 table whose rows and columns are appended; the store doubles when full, so n
+    appends copy O(n) values in all. :attr:`array` is the used corner (a view: writes go through)."""
+
+    def __init__(self, columns: int = 0, fill: float = np.nan):
+        self.fill = fill
+        self.rows, self.columns = 0, columns
+        self._store = np.full((0, columns), fill)
+
+    @property
+    def array(self) -> np.ndarray:
+        return self._store[: self.rows, : self.columns]
+
+    def _reserve(self, rows: int, columns: int) -> None:
+        have_rows, have_columns = self._store.shape
+        if rows > have_rows or columns > have_columns:
+            grown = np.full((have_rows if rows <= have_rows else max(rows, 2 * have_rows),
+                             have_columns if columns <= have_columns else max(columns, 2 * have_columns)), self.fill)
+            grown[:have_rows, :have_columns] = self._store
+            self._store = grown
+
+    def add_rows(self, block: np.ndarray) -> None:
+        """Append rows (k, columns)."""
+        block = np.asarray(block, dtype=float)
+        self._reserve(self.rows + len(block), self.columns)
+        self._store[self.rows: self.rows + len(block), : self.columns] = block
+        self.rows += len(block)
+
+    def add_columns(self, block: np.ndarray) -> None:
+        """Append columns (rows, k)."""
+        block = np.asarray(block, dtype=float)
+        self._reserve(self.rows, self.columns + block.shape[1])
+        self._store[: self.rows, self.columns: self.columns + block.shape[1]] = block
+        self.columns += block.shape[1]
+
+    def keep_columns(self, keep) -> None:
+        """Keep only the columns ``keep`` (indices or a boolean mask), in their order."""
+        kept = self.array[:, keep]
+        self._store[: self.rows, : self.columns] = self.fill
+        self.columns = kept.shape[1]
+        self._store[: self.rows, : self.columns] = kept
 
 
 class InstanceList:
@@ -18,20 +63,11 @@ class InstanceList:
         self.features: list[Hashable] = []
         self._row: dict[Hashable, int] = {}
         self._column: dict[Hashable, int] = {}
-        self._store = np.full((0, 0), np.nan)  # grows by doubling; the table is its used corner
+        self._table = GrowingTable()  # (instances, features), NaN where not measured
 
     @property
     def _values(self) -> np.ndarray:
-        """The table (instances, features), a view of the store."""
-        return self._store[: len(self.images), : len(self.features)]
-
-    def _reserve(self, rows: int, columns: int) -> None:
-        have_rows, have_columns = self._store.shape
-        if rows > have_rows or columns > have_columns:
-            grown = np.full((have_rows if rows <= have_rows else max(rows, 2 * have_rows),
-                             have_columns if columns <= have_columns else max(columns, 2 * have_columns)), np.nan)
-            grown[: self._store.shape[0], : self._store.shape[1]] = self._store
-            self._store = grown
+        return self._table.array
 
     def __len__(self) -> int:
         return len(self.images)
@@ -40,7 +76,7 @@ class InstanceList:
         """Row of ``image``, added with its true classes if new."""
         if image in self._row:
             return self._row[image]
-        self._reserve(len(self.images) + 1, len(self.features))
+        self._table.add_rows(np.full((1, len(self.features)), np.nan))
         self._row[image] = len(self.images)
         self.images.append(image)
         self.labels.append(frozenset(labels))
@@ -48,7 +84,7 @@ class InstanceList:
 
     def column(self, feature: Hashable) -> int:
         if feature not in self._column:
-            self._reserve(len(self.images), len(self.features) + 1)
+            self._table.add_columns(np.full((len(self.images), 1), np.nan))
             self._column[feature] = len(self.features)
             self.features.append(feature)
         return self._column[feature]
@@ -101,8 +137,6 @@ class InstanceList:
             return
         keep = np.ones(len(self.features), dtype=bool)
         keep[columns] = False
-        kept = self._values[:, keep]
-        self._store[:, : len(self.features)] = np.nan
+        self._table.keep_columns(keep)
         self.features = [f for f, k in zip(self.features, keep) if k]
-        self._store[: len(self.images), : len(self.features)] = kept
         self._column = {f: i for i, f in enumerate(self.features)}

@@ -8,25 +8,20 @@ new feature must also reach distinctive power >= t_KSD, and a correct recognitio
 some class uncertain triggers expert learning for the least-well-discriminated class pair
 (alg. 5.2) when that pair's best consulted feature falls short of t_KSD.
 
-Decisions the text leaves open:
-- A method's n_fgen candidates are drawn together when the method starts, from the pools as
-  they stand then (features in use, failed candidates of earlier methods), and measured on the
-  example images in one batch; acceptance is then tested one by one in order. This is exactly
-  what trying them one at a time would give under that drawing rule.
+The learner orchestrates; its parts own their state: :class:`~ftorch.counting.Counting` the
+instance list and the counts made from it (discretization, CPTs), :class:`~ftorch.candidates.
+CandidateGenerator` alg. 4.10's candidates, :func:`~ftorch.expertise.choose_pair` alg. 5.2's pair.
+
+Decisions the text leaves open (the parts' modules give theirs):
 - Success (alg. 4.8 step 8) is judged on the misrecognized image: its characterized class is
   now recognized if it is true there, or no longer recognized if it is false there (the
   ambiguous case, where the feature is sampled from an example image of that false class).
-- Nodes are discretized against the classes they were learned to discriminate (all other
-  classes where none is recorded); a node whose KSD has no cut-point keeps its threshold.
 - Alg. 5.1 calls alg. 4.10 "until" a candidate reaches t_KSD. A search here calls it (the five
   methods, n_fgen candidates each) up to ``search_rounds`` times and stops at the first candidate
   accepted; a candidate that failed is not tried again in the same search. The cap ends a
   hopeless search (a pair that no feature near the sample image separates) so that the stage's
   cycle limit, not one image, bounds the work; ``search_rounds=1`` is one call per presentation.
   An expert feature is accepted when it reaches t_KSD and the image is still recognized correctly.
-- KSD_{c,d}(f) of alg. 5.2 is the distinctive power of node f at the cut-point it has in c's
-  network, between instances of c and instances of d that are not of c (``ksd.distinctive_at``);
-  a class with no consulted feature of its own scores 0 against every d.
 
 Options for generalization beyond the thesis (each default is the thesis's behaviour):
 - ``redundancy`` k (7.2.4): a distinction c-vs-d that an image needs is *carried* by k features:
@@ -60,13 +55,14 @@ import numpy as np
 import torch
 
 from .bayes import ClassNetwork, compound_arcs
+from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
+from .counting import Counting
 from .environment import ImageSet
 from .errors import InputError
-from .features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, unpack_features
-from .generate import expand_geometric, random_edgel_pair, random_texel
+from .expertise import choose_pair
+from .features import Feature, FeatureTable, unpack_features
 from .instances import InstanceList
-from .ksd import distinctive_at, ksd
 from .recognition import Recognition, outcome, recognize, residual_entropy
 
 
@@ -139,14 +135,26 @@ class DistinctiveFeatureLearner:
         self.min_information, self.test_information = float(min_information), float(test_information)
         self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
         self.pseudocount, self.cut_position = float(pseudocount), float(cut_position)
-        self.generator = torch.Generator().manual_seed(int(seed))
+        self.generator = torch.Generator().manual_seed(int(seed))  # every random choice; set in place on load
         self.networks: dict[Hashable, ClassNetwork] = {}
-        self.discriminates: dict[tuple, frozenset] = {}
-        self.instances = InstanceList()
-        self.usage: dict = {}
+        self.counting = Counting()
+        self.candidates = CandidateGenerator(self.generator)
+        self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
-        self.sampled = 0
         self.trainable = True  # False once loaded from a recognition-only state
+
+    @property
+    def instances(self) -> InstanceList:
+        return self.counting.instances
+
+    @property
+    def discriminates(self) -> dict[tuple, frozenset]:
+        return self.counting.discriminates
+
+    @property
+    def sampled(self) -> int:
+        """Features sampled from images so far (alg. 4.10 methods 2 and 3; figures 4.10 and 5.19)."""
+        return self.candidates.sampled
 
     def options(self) -> dict:
         """The generalization options (module docstring), as keyword arguments of the constructor."""
@@ -164,20 +172,6 @@ class DistinctiveFeatureLearner:
             setattr(self, k, getattr(probe, k))
         return self
 
-    # -- measurement -------------------------------------------------------------------------
-    def _measure(self, env: ImageSet, features, images) -> None:
-        """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
-        for image in images:
-            self.instances.add(image, env.labels[image])
-        features = list(dict.fromkeys(features))
-        if features:
-            self.instances.set_block(list(images), features, env.values(features, list(images)))
-
-    def _record(self, image: int, rec: Recognition) -> None:
-        """The values a training recognition measured join the instance list."""
-        if rec.queried:
-            self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
-
     # -- recognition (alg. 4.4) --------------------------------------------------------------
     def recognize(self, env: ImageSet, image: int) -> Recognition:
         """Recognize one image of ``env`` (alg. 4.4, stopping at ``test_information``); nothing is
@@ -190,7 +184,7 @@ class DistinctiveFeatureLearner:
 
     def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
         images = list(images)
-        features = self._in_use()
+        features = in_use(self.networks)
         table = env.values(features, images) if features else np.zeros((0, len(images)))
         out = []
         for k in range(len(images)):
@@ -200,38 +194,9 @@ class DistinctiveFeatureLearner:
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
-    def _discretize(self, label, features: list, against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
-        it discriminates (def. 4.2; ``against``, where given, for all of them), in one batched KSD."""
-        present = self.instances.has(label)
-        others = [against if against is not None else self.discriminates.get((label, f)) for f in features]
-        others = [d or frozenset() for d in others]
-        masks = {}
-        for d in others:
-            if d not in masks:
-                masks[d] = (self.instances.has_any(d) if d else np.ones_like(present)) & ~present
-        discriminated = np.stack([masks[d] for d in others])
-        values = self.instances.block(features)
-        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), self.cut_position)
-        return result.cutpoint.numpy(), result.distinctive.numpy()
-
-    def _estimate(self, label) -> None:
-        net = self.networks[label]
-        values = self.instances.block(net.features)
-        thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
-        coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
-        states = dict(zip(net.features, coded))
-        net.estimate(self.instances.has(label), states, self.pseudocount)
-
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior."""
-        for label, net in self.networks.items():
-            if net.features:
-                cuts, _ = self._discretize(label, net.features)
-                for f, cut in zip(net.features, cuts.tolist()):
-                    if np.isfinite(cut):
-                        net.set_threshold(f, cut)
-            self._estimate(label)
+        self.counting.reestimate(self.networks, self.cut_position, self.pseudocount)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
     def learn(self, env: ImageSet, image: int, t_ksd: float = 0.0) -> Presentation:
@@ -249,7 +214,7 @@ class DistinctiveFeatureLearner:
         for label in sorted(true, key=str):  # network order breaks ties in alg. 4.4: keep it fixed
             if label not in self.networks:
                 self.networks[label] = ClassNetwork(label)
-        self.instances.add(image, true)
+        self.counting.instances.add(image, true)
         first = self._training_recognition(env, image)
         entropy = residual_entropy(first)
         if outcome(first.recognized, true) == "correct":
@@ -280,47 +245,12 @@ class DistinctiveFeatureLearner:
         return Presentation(rec, "expert" if learned else "expert-failed", entropy, (c, d), weakest)
 
     def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
-        """Alg. 5.2: (c, d, KSD_{c,d}) for the least-well-discriminated pair of a class c with
-        residual entropy and a class d on the other side of the truth (eq. 5.1); None if no class
-        is uncertain or no such pair exists.
-
-        With ``redundancy`` k > 1 the pair's score is its support: the k-th largest KSD_{c,d}(f)
-        over all features f of c's network (0 with fewer than k); c ranges over the uncertain
-        classes and the true classes; and the k strongest carriers of every pair scored count as
-        used (alg. 5.3 step 4), since recognition stops consulting once a class is certain."""
-        k = self.redundancy
-        labels = list(self.networks)
-        pairs = []  # (c, the classes d, c's carriers)
-        for c in labels:
-            if entropy.get(c, 0.0) <= 0 and not (k > 1 and c in true):
-                continue
-            others = [d for d in labels if (d in true) != (c in true)]
-            if others:
-                pairs.append((c, others, [f for f in self.networks[c].features if k > 1 or f in rec.values]))
-        # KSD_{c,d}(f) of every pair and carrier in one batch: rows c, d, f
-        member = {label: self.instances.has(label) for label in labels}
-        rows = [(c, d, f) for c, others, carriers in pairs for d in others for f in carriers]
-        if rows:
-            values = self.instances.block([f for _, _, f in rows])
-            cuts = np.array([self.networks[c].threshold[f] for c, _, f in rows])
-            present = np.stack([member[c] for c, _, _ in rows])
-            against = np.stack([member[d] for _, d, _ in rows]) & ~present
-            powers = distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
-                                    torch.from_numpy(against))
-        best, start = None, 0
-        for c, others, carriers in pairs:
-            if carriers:
-                block = powers[start : start + len(others) * len(carriers)].view(len(others), len(carriers))
-                start += block.numel()
-                strongest = [p.topk(min(k, len(p))) for p in block]
-                scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
-                if k > 1:
-                    self._mark_usage({carriers[i] for top in strongest for i in top.indices.tolist()})
-            else:
-                scores = [0.0] * len(others)
-            j = int(np.argmin(scores))
-            if best is None or scores[j] < best[2]:
-                best = (c, others[j], scores[j])
+        """Alg. 5.2 (:func:`ftorch.expertise.choose_pair` with this learner's ``redundancy``): (c, d,
+        KSD_{c,d}) for the least-well-discriminated pair, or None; with k > 1 the k strongest carriers
+        of every pair scored count as used."""
+        best, used = choose_pair(self.networks, self.counting, rec, true, entropy, self.redundancy)
+        for carriers in used:
+            self._mark_usage(carriers)
         return best
 
     def _learning_recognition(self, env: ImageSet, image: int) -> Recognition:
@@ -329,7 +259,7 @@ class DistinctiveFeatureLearner:
 
     def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
         rec = self._learning_recognition(env, image)
-        self._record(image, rec)
+        self.counting.record(image, rec)
         self._mark_usage(rec.queried)
         return rec
 
@@ -340,21 +270,14 @@ class DistinctiveFeatureLearner:
     def discard_unused(self, since: int) -> list:
         """Remove every feature not queried in a training recognition since presentation ``since``
         (alg. 5.3 step 4); returns them. The networks are re-counted."""
-        unused = [f for f in self._in_use() if self.usage.get(f, -1) < since]
+        unused = [f for f in in_use(self.networks) if self.usage.get(f, -1) < since]
         for f in unused:
-            for label, net in self.networks.items():
-                if f in net:
-                    net.remove_feature(f)
-                    self.discriminates.pop((label, f), None)
             self.usage.pop(f, None)
-        self.instances.forget(unused)
+        self.counting.forget(unused, self.networks)
         if unused:
-            for label in self.networks:
-                self._estimate(label)
+            for net in self.networks.values():
+                self.counting.estimate(net, self.pseudocount)
         return unused
-
-    def _pick(self, items: list):
-        return items[int(torch.randint(len(items), (1,), generator=self.generator))]
 
     def choose_classes(self, rec: Recognition, true: frozenset) -> tuple[Hashable, frozenset, bool] | None:
         """Alg. 4.8 step 1 (table 4.1): (characterized class, discriminated classes, characterized is true).
@@ -376,88 +299,50 @@ class DistinctiveFeatureLearner:
             char_belief = max(beliefs[c] for c in false)
         else:
             return None
-        char = self._pick([c for c in char_pool if beliefs[c] == char_belief])
+        char = pick([c for c in char_pool if beliefs[c] == char_belief], self.generator)
         if not other:
             return char, frozenset(), char_is_true
         target = max(beliefs[c] for c in other) if char_is_true else min(beliefs[c] for c in other)
         return char, frozenset(c for c in other if beliefs[c] == target), char_is_true
-
-    def _in_use(self) -> list:
-        return list(dict.fromkeys(f for net in self.networks.values() for f in net.features))
-
-    def _candidates(self, method: int, env: ImageSet, sample: int, char, disc: frozenset, failed: list) -> list:
-        """n_fgen candidates of one method of alg. 4.10, drawn together."""
-        n = self.n_fgen
-        if method == 1:  # reuse a feature of an unrelated class
-            related = {char, *disc}
-            own = {f for c in related if c in self.networks for f in self.networks[c].features}
-            pool = [f for label, net in self.networks.items() if label not in related for f in net.features if f not in own]
-            pool = list(dict.fromkeys(pool))
-            return [self._pick(pool) for _ in range(n)] if pool else []
-        if method == 2:  # new primitive from the sample image
-            record = env.record(sample)
-            made = [random_texel(record, 0, self.generator) if torch.rand(1, generator=self.generator) < 0.5
-                    else random_edgel_pair(record, 0, self.generator) for _ in range(n)]
-            made = [f for f in made if f is not None]
-            self.sampled += len(made)
-            return made
-        pool = self._in_use() + failed
-        if method == 3:  # geometric expansion at the strongest occurrence
-            local = [f for f in pool if isinstance(f, LocalFeature)]
-            if not local:
-                return []
-            made = [expand_geometric(self._pick(local), env.record(sample), 0, self.generator) for _ in range(n)]
-            made = [f for f in made if f is not None]
-            self.sampled += len(made)
-            return made
-        if len(pool) < 2:
-            return []
-        kind = Conjunction if method == 4 else Disjunction
-        made = []
-        for _ in range(n):
-            a = self._pick(pool)
-            b = self._pick([f for f in pool if f != a])
-            made.append(kind(a, b))
-        return made
 
     def _search(self, env: ImageSet, image: int, char, disc: frozenset, char_is_true: bool, t_ksd: float,
                 succeeded) -> bool:
         """Alg. 4.8 from step 2: add one feature characteristic of ``char`` against ``disc`` with
         distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``.
         Alg. 4.10 (the five methods) is called up to ``search_rounds`` times (alg. 5.1's "until")."""
-        sample = image if char_is_true else self._pick(env.examples(char, self.n_ex, self.generator))
+        sample = image if char_is_true else pick(env.examples(char, self.n_ex, self.generator), self.generator)
         examples = env.examples(char, self.n_ex, self.generator)
         for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
             examples += env.examples(d, self.n_ex, self.generator)
         images = list(dict.fromkeys([image, sample, *examples]))
         net = self.networks[char]
         failed: list = []
-        for method in [m for _ in range(self.search_rounds) for m in range(1, 6)]:
+        for method in [m for _ in range(self.search_rounds) for m in METHODS]:
             tried = set(failed)
-            candidates = [f for f in self._candidates(method, env, sample, char, disc, failed)
+            candidates = [f for f in self.candidates(method, self.n_fgen, self.networks, env, sample, char, disc, failed)
                           if f not in net and f not in tried]
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
                 continue
-            self._measure(env, [*candidates, *net.features], images)
+            self.counting.measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
-            cuts, powers = self._discretize(char, candidates, disc)
+            cuts, powers = self.counting.discretize(char, candidates, self.cut_position, disc)
             for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
                 if power <= 0 or power < t_ksd:
                     failed.append(candidate)
                     continue
-                self.discriminates[(char, candidate)] = disc
+                self.counting.discriminates[(char, candidate)] = disc
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
-                self._estimate(char)
+                self.counting.estimate(net, self.pseudocount)
                 after = self._learning_recognition(env, image)
-                self._record(image, after)
+                self.counting.record(image, after)
                 if succeeded(after):
                     self._mark_usage([*after.queried, candidate])
                     return True
                 net.remove_feature(candidate)
-                del self.discriminates[(char, candidate)]
-                self._estimate(char)
+                del self.counting.discriminates[(char, candidate)]
+                self.counting.estimate(net, self.pseudocount)
                 failed.append(candidate)
         return False
 
@@ -515,7 +400,7 @@ class DistinctiveFeatureLearner:
         for k in ("pseudocount", "cut_position", "test_information"):
             options[k] = _number(options[k])
         self.set_params(**options)
-        self.presentations, self.sampled = _count(state["presentations"]), _count(state["sampled"])
+        self.presentations, self.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])
         self.networks = {}
         for record in state["networks"]:
             net = ClassNetwork.of(_label(record["label"]), [at(i) for i in record["features"]],
@@ -528,12 +413,12 @@ class DistinctiveFeatureLearner:
         if not self.networks and "instances" not in state:
             raise ValueError("a recognition file without a class network")  # a fresh learner's full state has none
         self.trainable = "instances" in state
-        self.discriminates, self.usage, self.instances = {}, {}, InstanceList()
-        self.generator = torch.Generator()
+        self.counting, self.usage = Counting(), {}
+        self.generator.set_state(torch.Generator().get_state())  # in place: the parts hold this generator
         if not self.trainable:
             return
         self.generator.set_state(torch.from_numpy(decode_array(state["generator"]).astype(np.uint8)))
-        self.discriminates = {(c, at(f)): frozenset(d) for c, f, d in state["discriminates"]}
+        self.counting.discriminates.update({(c, at(f)): frozenset(d) for c, f, d in state["discriminates"]})
         self.usage = {at(f): _count(n) for f, n in state["usage"]}
         block = state["instances"]
         for image, labels in zip(block["images"], block["labels"]):

@@ -30,14 +30,14 @@ def _search(env, rounds: int, succeed_at: int | None, monkeypatch) -> tuple[bool
     learner = DistinctiveFeatureLearner(seed=1, search_rounds=rounds)
     _train(env, learner, cycles=1)
     calls, tried = [], []
-    generate = learner._candidates
-    monkeypatch.setattr(learner, "_candidates", lambda method, *a: calls.append(method) or generate(method, *a))
+    generate = learner.candidates
+    monkeypatch.setattr(learner, "candidates", lambda method, *a: calls.append(method) or generate(method, *a))
 
-    def power(label, features, against=None):
+    def power(label, features, cut_position, against=None):
         first = len(tried)
         tried.extend(features)
         return np.zeros(len(features)), np.array([float(first + j == succeed_at) for j in range(len(features))])
-    monkeypatch.setattr(learner, "_discretize", power)
+    monkeypatch.setattr(learner.counting, "discretize", power)
     found = learner._search(env, 0, 0, frozenset({1}), True, 0.5, lambda rec: True)
     if found:  # the successful candidate, and no other of those discretized, joined class 0's network
         assert [f for f in tried if f in learner.networks[0]] == [tried[succeed_at]]

@@ -45,17 +45,13 @@ def _brute_ksd(values, correct):
 def _synthetic_set(rng, n=60):
     """Feature 0 responds strongly (0.8-1) to the first half, where theta_H = theta_f + 0.5 (2 degrees
     of noise); weakly (0.2-0.5) to the rest, where theta_H is random. Feature 1 responds at random."""
-    s = GraspFeatureSet(2)
-    s.features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
-    s.models, s.born, s.used, s.quality = [None, None], [0, 0], [-1, -1], np.zeros((4, 2))
+    features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
     first = np.arange(n) < n // 2
-    s.thetas = rng.uniform(-math.pi, math.pi, (n, 2))
-    s.theta_H = np.where(first, s.thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n), rng.uniform(-math.pi, math.pi, n))
-    s.values = np.stack([np.where(first, rng.uniform(0.8, 1.0, n), rng.uniform(0.2, 0.5, n)), rng.uniform(0, 1, n)], 1)
-    s.mu0 = np.where(first, rng.uniform(0.0, 0.1, n), rng.uniform(0.5, 0.7, n))
-    s.period = np.full(n, 2 * math.pi)
-    s.images = list(range(n))
-    return s, first
+    thetas = rng.uniform(-math.pi, math.pi, (n, 2))
+    theta_H = np.where(first, thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n), rng.uniform(-math.pi, math.pi, n))
+    values = np.stack([np.where(first, rng.uniform(0.8, 1.0, n), rng.uniform(0.2, 0.5, n)), rng.uniform(0, 1, n)], 1)
+    mu0 = np.where(first, rng.uniform(0.0, 0.1, n), rng.uniform(0.5, 0.7, n))
+    return GraspFeatureSet.from_instances(2, features, values, thetas, theta_H, mu0, np.full(n, 2 * math.pi)), first
 
 
 def test_feature_models_match_a_brute_force_rederivation():
@@ -85,8 +81,7 @@ def test_feature_models_match_a_brute_force_rederivation():
 def test_a_feature_without_false_predictions_is_perfect():
     s, first = _synthetic_set(np.random.default_rng(1))
     keep = np.flatnonzero(first)
-    s.values, s.thetas, s.theta_H, s.mu0, s.period = (a[keep] for a in (s.values, s.thetas, s.theta_H, s.mu0, s.period))
-    s.images = list(keep)
+    s = GraspFeatureSet.from_instances(2, s.features, *(a[keep] for a in (s.values, s.thetas, s.theta_H, s.mu0, s.period)))
     s.fit(math.radians(10), max_k=4, min_points=3)
     assert s.models[0].ksd == 1.0 and s.models[0].alpha == -math.inf and s.models[0].mixture.n == len(keep)
 
@@ -197,13 +192,15 @@ def test_grasp_command_writes_report_figures_and_events(tmp_path, capsys):
     assert set(report["poor_grasp_fraction"]) >= {"haptic", "cued"}
     assert set(report["online"]) == {"offline", "online"} and [f["mode"] for f in report["folds"]] == ["offline", "online"]
     assert all((out / name).is_file() for name in ("errors.png", "grasps.png", "fold1_features.png", "report.md"))
-    events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"scalars": 0, "histograms": 0})
+    events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"scalars": 0, "histograms": 0, "images": 0})
     events.Reload()
     fold = report["folds"][0]
     assert [e.value for e in events.Scalars("train/mistakes")] == pytest.approx([e["mistakes"] for e in fold["epochs"]])
     assert events.Scalars("test/poor_cued")[0].value == pytest.approx(fold["poor_grasp_fraction"]["cued"])
     assert {"test/orientation_error_deg", "test/probes_haptic", "test/probes_cued", "test/mu0_haptic",
             "test/mu0_cued"} <= set(events.Tags()["histograms"])
+    for tag in ("figures/errors", "figures/grasps", "figures/features"):  # charts by add_figure, features by add_image
+        assert [e.step for e in events.Images(tag)] == [len(fold["epochs"])]
     assert run.main(argv[:-2] + ["--best", "5", "--out", str(out)]) == 2
     assert "--best 5" in capsys.readouterr().err
 
@@ -260,18 +257,14 @@ def _two_kind_set(rng, fingers, n=40):
     and is present on both (values 0.6-1), but responds more to squares (0.85-1) than to triangles
     (0.6-0.75); feature 1 responds at random. With two fingers squares are good grasps (mu_0 ~ .02),
     triangles poor (~ .5); with three the reverse."""
-    s = GraspFeatureSet(fingers)
-    s.features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
-    s.models, s.born, s.used, s.quality = [None, None], [0, 0], [-1, -1], np.zeros((4, 2))
+    features = [Texel(rng.normal(size=15).tolist()) for _ in range(2)]
     square = np.arange(n) < n // 2
-    s.thetas = rng.uniform(-math.pi, math.pi, (n, 2))
-    s.theta_H = s.thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n)
-    s.values = np.stack([np.where(square, rng.uniform(0.85, 1.0, n), rng.uniform(0.6, 0.75, n)), rng.uniform(0, 1, n)], 1)
+    thetas = rng.uniform(-math.pi, math.pi, (n, 2))
+    theta_H = thetas[:, 0] + 0.5 + rng.normal(0, math.radians(2), n)
+    values = np.stack([np.where(square, rng.uniform(0.85, 1.0, n), rng.uniform(0.6, 0.75, n)), rng.uniform(0, 1, n)], 1)
     good = square if fingers == 2 else ~square
-    s.mu0 = np.where(good, rng.uniform(0.01, 0.04, n), rng.uniform(0.45, 0.57, n))
-    s.period = np.full(n, 2 * math.pi)
-    s.images = list(range(n))
-    return s
+    mu0 = np.where(good, rng.uniform(0.01, 0.04, n), rng.uniform(0.45, 0.57, n))
+    return GraspFeatureSet.from_instances(fingers, features, values, thetas, theta_H, mu0, np.full(n, 2 * math.pi))
 
 
 def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds():

@@ -7,12 +7,16 @@ import pytest
 import torch
 
 from ftorch.environment import ImageSet
-from ftorch.features import unpack_features
-from ftorch.instances import InstanceList
+from ftorch.evaluate import feature_values
+from ftorch.features import FeatureTable, unpack_features
+from ftorch.generate import random_edgel_pair, random_texel
+from ftorch.candidates import in_use
+from ftorch.instances import GrowingTable, InstanceList
 from ftorch.learner import DistinctiveFeatureLearner
 from ftorch.bayes import ClassNetwork
 from ftorch.errors import InputError
 from ftorch.recognition import Recognition, accuracy, residual_entropy
+from ftorch.value_cache import ValueCache
 
 
 def shape(kind: int, angle: float, rng, size: int = 40) -> np.ndarray:
@@ -103,6 +107,28 @@ def test_instance_list_counts_only_measured_values():
     assert np.isnan(instances.get("i1", "g")) and np.isnan(instances.get("i1", "h"))
 
 
+def test_growing_table_equals_a_table_rebuilt_at_every_step():
+    """Random appends of rows and columns and column removals, against numpy's vstack/hstack."""
+    rng = np.random.default_rng(0)
+    table, reference = GrowingTable(fill=-1.0), np.zeros((0, 0))
+    for _ in range(300):
+        step = rng.integers(3)
+        if step == 0:
+            rows = rng.normal(size=(int(rng.integers(1, 4)), reference.shape[1]))
+            table.add_rows(rows)
+            reference = np.vstack([reference, rows])
+        elif step == 1:
+            columns = rng.normal(size=(reference.shape[0], int(rng.integers(1, 4))))
+            table.add_columns(columns)
+            reference = np.hstack([reference, columns])
+        else:
+            keep = rng.random(reference.shape[1]) < 0.8
+            table.keep_columns(keep)
+            reference = reference[:, keep]
+        assert np.array_equal(table.array, reference)
+    assert table.array.shape == reference.shape and reference.size > 0
+
+
 def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
     learner, _ = train(shapes, seed=1, cycles=2)
     before = (len(learner.instances), learner.instances.values_table().copy(), learner.presentations)
@@ -118,7 +144,7 @@ def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
 def test_each_value_is_computed_once(shapes, monkeypatch):
     env = ImageSet(shapes.images[:6], shapes.labels[:6])
     learner, _ = train(shapes, seed=2, cycles=1)
-    features = learner._in_use()[:5]
+    features = in_use(learner.networks)[:5]
     calls = []
     original = ImageSet._compute
     monkeypatch.setattr(ImageSet, "_compute", lambda self, f, i: calls.append((len(f), len(i))) or original(self, f, i))
@@ -134,21 +160,71 @@ def test_each_value_is_computed_once(shapes, monkeypatch):
     assert len(calls) == 2
 
 
+
+def test_value_cache_follows_its_rule_equals_fresh_values_and_round_trips(shapes):
+    """Random requests against a model of the caching rule: the callback is asked exactly for the
+    features missing at each call (on the requested images, or on all for one image), every value
+    returned is the first one computed for its pair, and the values equal a fresh evaluation."""
+    env = ImageSet(shapes.images[:8], shapes.labels[:8], records=shapes.records(range(8)))
+    generator = torch.Generator().manual_seed(0)
+    features = [f for n in range(8) for f in (random_texel(env.all_records, n, generator),
+                                              random_edgel_pair(env.all_records, n, generator)) if f is not None]
+    assert len(features) >= 10
+    row = {f: k for k, f in enumerate(features)}
+    first = np.full((len(features), len(env)), np.nan)  # the model: the first value computed for each pair
+    calls = []
+
+    def compute(asked, images):
+        calls.append((asked, images))
+        values = env._compute(asked, images)
+        for f, v in zip(asked, values):
+            first[row[f], images] = np.where(np.isnan(first[row[f], images]), v, first[row[f], images])
+        return values
+
+    cache, rng = ValueCache(len(env)), np.random.default_rng(0)
+    for _ in range(25):
+        asked = [features[k] for k in rng.integers(len(features), size=int(rng.integers(1, 6)))]  # repeats too
+        images = [int(i) for i in rng.choice(len(env), size=int(rng.integers(1, 5)), replace=False)]
+        missing = list(dict.fromkeys(f for f in asked if np.isnan(first[row[f], images]).any()))
+        before = len(calls)
+        block = cache.values(asked, images, compute)
+        batch = list(range(len(env))) if len(images) == 1 else images
+        assert calls[before:] == ([(missing, batch)] if missing else [])
+        assert np.array_equal(block, first[np.ix_([row[f] for f in asked], images)])
+    assert 1 < len(calls) < 25 and np.isnan(first).any() and len(cache) == len(features)
+    fresh = feature_values(features, env.all_records).values.double().numpy()
+    measured = ~np.isnan(first)
+    np.testing.assert_allclose(first[measured], fresh[measured], rtol=0, atol=1e-6)
+
+    shared, saved, order = FeatureTable(), cache._table.array.copy(), list(cache._row)
+    for state, known in ((json.loads(json.dumps(cache.state_dict())), None),
+                         (cache.state_dict(shared), list(reversed(shared.features)))):
+        if known is not None:  # written against a table the caller keeps, in another order
+            state = {"features": [known.index(f) for f in shared.features], "values": state["values"]}
+        other = ValueCache(len(env))
+        other.load_state_dict(state, known)
+        assert list(other._row) == order and np.array_equal(other._table.array, saved, equal_nan=True)
+        assert np.array_equal(other.values(features, range(len(env)), compute), cache.values(features, range(len(env)), compute))
+    assert not np.isnan(first).any()
+    np.testing.assert_allclose(first, fresh, rtol=0, atol=1e-6)
+    with pytest.raises(InputError, match="expected"):
+        ValueCache(len(env) + 1).load_state_dict(cache.state_dict())
+
 def test_discard_unused_removes_features_and_recounts(shapes):
     learner, _ = train(shapes, seed=0, cycles=2)
     assert learner.discard_unused(since=0) == []  # every feature was used at some presentation
     last = learner.presentations
     for i in range(3):
         learner.learn(shapes, i)
-    in_use = learner._in_use()
-    kept = [f for f in in_use if learner.usage[f] > last]
-    assert 0 < len(kept) < len(in_use)
+    used = in_use(learner.networks)
+    kept = [f for f in used if learner.usage[f] > last]
+    assert 0 < len(kept) < len(used)
     dropped = learner.discard_unused(since=last + 1)
-    assert dropped == [f for f in in_use if f not in kept] and learner._in_use() == kept
+    assert dropped == [f for f in used if f not in kept] and in_use(learner.networks) == kept
     assert all(f not in learner.instances.features and f not in learner.usage for f in dropped)
     for label, net in learner.networks.items():  # re-counted: the CPTs are those a fresh estimate gives
         tables = {f: net.cpt[f].copy() for f in net.features}
-        learner._estimate(label)
+        learner.counting.estimate(learner.networks[label], learner.pseudocount)
         assert all(np.array_equal(tables[f], net.cpt[f]) for f in net.features)
 
 
@@ -167,8 +243,8 @@ def test_recognition_file_holds_the_networks_only_recognizes_alike_and_refuses_t
     a.save(tmp_path / "full.json", training=True)
     a.save(tmp_path / "a.json")
     b = DistinctiveFeatureLearner.load(tmp_path / "a.json")
-    assert len(unpack_features(json.loads((tmp_path / "a.json").read_text())["learner"]["features"])) == len(a._in_use())
-    assert len(a.instances.features) > len(a._in_use())  # the full state holds more: failed candidates' values
+    assert len(unpack_features(json.loads((tmp_path / "a.json").read_text())["learner"]["features"])) == len(in_use(a.networks))
+    assert len(a.instances.features) > len(in_use(a.networks))  # the full state holds more: failed candidates' values
     assert (tmp_path / "a.json").stat().st_size < (tmp_path / "full.json").stat().st_size / 2
     assert b.state_dict(training=False) == a.state_dict(training=False)
     ours, theirs = a.recognize_many(shapes, range(len(shapes))), b.recognize_many(shapes, range(len(shapes)))
@@ -211,7 +287,7 @@ def test_expert_features_meet_the_ksd_target(shapes):
             assert p.entropy[c] > 0 and p.ksd < 0.9 and (c in shapes.labels[i]) != (d in shapes.labels[i])
         if p.result == "expert":
             (new,) = set(learner.networks[p.pair[0]].features) - before[p.pair[0]]
-            assert learner._discretize(p.pair[0], [new])[1][0] >= 0.9
+            assert learner.counting.discretize(p.pair[0], [new], learner.cut_position)[1][0] >= 0.9
             assert learner.discriminates[(p.pair[0], new)] == {p.pair[1]}
             accepted += 1
     assert accepted > 0

@@ -1,0 +1,80 @@
+"""Alg. 4.10: candidate features in order of structural complexity, by five methods.
+
+1. reuse a feature of an unrelated class; 2. a new primitive (texel or edgel pair, equally
+likely) sampled from the sample image; 3. a geometric expansion of a local feature in use (or
+failed before) at its strongest occurrence in the sample image; 4. a conjunction and 5. a
+disjunction of two such features.
+
+A method's n_fgen candidates are drawn together when the method starts, from the pools as they
+stand then (features in use, failed candidates of earlier methods); the learner measures them in
+one batch and tests them one by one in order, which is exactly what trying them one at a time
+would give under that drawing rule.
+"""
+from __future__ import annotations
+
+from collections.abc import Hashable
+
+import torch
+
+from .bayes import ClassNetwork
+from .environment import ImageSet
+from .features import Conjunction, Disjunction, LocalFeature
+from .generate import expand_geometric, random_edgel_pair, random_texel
+
+METHODS = (1, 2, 3, 4, 5)
+
+
+def pick(items: list, generator: torch.Generator):
+    """One of ``items``, uniformly."""
+    return items[int(torch.randint(len(items), (1,), generator=generator))]
+
+
+def in_use(networks: dict[Hashable, ClassNetwork]) -> list:
+    """Every feature of every network, once, in network order."""
+    return list(dict.fromkeys(f for net in networks.values() for f in net.features))
+
+
+class CandidateGenerator:
+    """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
+    from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
+
+    def __init__(self, generator: torch.Generator):
+        self.generator = generator
+        self.sampled = 0
+
+    def __call__(self, method: int, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
+                 char, disc: frozenset, failed: list) -> list:
+        """``n`` (n_fgen) candidates of one method for characterizing ``char`` against ``disc`` with
+        the sample image ``sample``, drawn together; ``failed``: earlier candidates of this search."""
+        generator = self.generator
+        if method == 1:  # reuse a feature of an unrelated class
+            related = {char, *disc}
+            own = {f for c in related if c in networks for f in networks[c].features}
+            pool = [f for label, net in networks.items() if label not in related for f in net.features if f not in own]
+            pool = list(dict.fromkeys(pool))
+            return [pick(pool, generator) for _ in range(n)] if pool else []
+        if method == 2:  # new primitive from the sample image
+            record = env.record(sample)
+            made = [random_texel(record, 0, generator) if torch.rand(1, generator=generator) < 0.5
+                    else random_edgel_pair(record, 0, generator) for _ in range(n)]
+            made = [f for f in made if f is not None]
+            self.sampled += len(made)
+            return made
+        pool = in_use(networks) + failed
+        if method == 3:  # geometric expansion at the strongest occurrence
+            local = [f for f in pool if isinstance(f, LocalFeature)]
+            if not local:
+                return []
+            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator) for _ in range(n)]
+            made = [f for f in made if f is not None]
+            self.sampled += len(made)
+            return made
+        if len(pool) < 2:
+            return []
+        kind = Conjunction if method == 4 else Disjunction
+        made = []
+        for _ in range(n):
+            a = pick(pool, generator)
+            b = pick([f for f in pool if f != a], generator)
+            made.append(kind(a, b))
+        return made

@@ -1,0 +1,98 @@
+"""What the learner counts (4.4.1, alg. 4.7 step 3): the instance list, the classes each node was
+learned to discriminate, node discretization by KSD (def. 4.2) and CPT estimation.
+
+Nodes are discretized against the classes they were learned to discriminate (all other classes
+where none is recorded); a node whose KSD has no cut-point keeps its threshold.
+"""
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterable
+
+import numpy as np
+import torch
+
+from .bayes import ClassNetwork
+from .environment import ImageSet
+from .instances import InstanceList
+from .ksd import distinctive_at, ksd
+from .recognition import Recognition
+
+
+class Counting:
+    """The instance list and the discriminated classes of every node, with the counts made from them.
+
+    ``discriminates[(c, f)]``: the classes node f of c's network was learned to tell c from.
+    """
+
+    def __init__(self):
+        self.instances = InstanceList()
+        self.discriminates: dict[tuple, frozenset] = {}
+
+    def measure(self, env: ImageSet, features, images) -> None:
+        """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
+        for image in images:
+            self.instances.add(image, env.labels[image])
+        features = list(dict.fromkeys(features))
+        if features:
+            self.instances.set_block(list(images), features, env.values(features, list(images)))
+
+    def record(self, image: int, rec: Recognition) -> None:
+        """The values a training recognition measured join the instance list."""
+        if rec.queried:
+            self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
+
+    def discretize(self, label, features: list, cut_position: float,
+                   against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
+        it discriminates (def. 4.2; ``against``, where given, for all of them), in one batched KSD;
+        the cut-point lies at ``cut_position`` between the two values where the KSD is reached."""
+        present = self.instances.has(label)
+        others = [against if against is not None else self.discriminates.get((label, f)) for f in features]
+        others = [d or frozenset() for d in others]
+        masks = {}
+        for d in others:
+            if d not in masks:
+                masks[d] = (self.instances.has_any(d) if d else np.ones_like(present)) & ~present
+        discriminated = np.stack([masks[d] for d in others])
+        values = self.instances.block(features)
+        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), cut_position)
+        return result.cutpoint.numpy(), result.distinctive.numpy()
+
+    def estimate(self, net: ClassNetwork, pseudocount: float) -> None:
+        """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a)."""
+        values = self.instances.block(net.features)
+        thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
+        coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
+        states = dict(zip(net.features, coded))
+        net.estimate(self.instances.has(net.label), states, pseudocount)
+
+    def reestimate(self, networks: dict[Hashable, ClassNetwork], cut_position: float, pseudocount: float) -> None:
+        """Alg. 4.7 step 3: re-discretize every node by KSD and re-count every CPT and prior."""
+        for label, net in networks.items():
+            if net.features:
+                cuts, _ = self.discretize(label, net.features, cut_position)
+                for f, cut in zip(net.features, cuts.tolist()):
+                    if np.isfinite(cut):
+                        net.set_threshold(f, cut)
+            self.estimate(net, pseudocount)
+
+    def pair_powers(self, networks: dict[Hashable, ClassNetwork], rows: list[tuple]) -> torch.Tensor:
+        """KSD_{c,d}(f) for rows (c, d, f) in one batch (alg. 5.2, ``ksd.distinctive_at``): node f at its
+        cut-point in c's network, between instances of c and instances of d that are not of c."""
+        member = {label: self.instances.has(label) for label in dict.fromkeys(x for c, d, _ in rows for x in (c, d))}
+        values = self.instances.block([f for _, _, f in rows])
+        cuts = np.array([networks[c].threshold[f] for c, _, f in rows])
+        present = np.stack([member[c] for c, _, _ in rows])
+        against = np.stack([member[d] for _, d, _ in rows]) & ~present
+        return distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
+                              torch.from_numpy(against))
+
+    def forget(self, features: Iterable[Hashable], networks: dict[Hashable, ClassNetwork]) -> None:
+        """Discarded features (alg. 5.3 step 4): their nodes, discriminated classes and instance columns go."""
+        features = list(features)
+        for f in features:
+            for label, net in networks.items():
+                if f in net:
+                    net.remove_feature(f)
+                    self.discriminates.pop((label, f), None)
+        self.instances.forget(features)

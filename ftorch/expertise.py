@@ -1,0 +1,54 @@
+"""Alg. 5.2: the least-well-discriminated class pair of a correct recognition (expert learning).
+
+KSD_{c,d}(f) is the distinctive power of node f at the cut-point it has in c's network, between
+instances of c and instances of d that are not of c (``ksd.distinctive_at``); a class with no
+consulted feature of its own scores 0 against every d.
+
+With ``redundancy`` k > 1 (7.2.4) a pair's score is its support, the k-th largest KSD_{c,d}(f)
+over all features f of c's network (0 with fewer than k); c ranges over the uncertain classes
+and the true classes (a certain recognition may rest on a single feature); and the k strongest
+carriers of every pair scored count as used (alg. 5.3 step 4), since recognition stops
+consulting once a class is certain. k = 1 is alg. 5.2 as printed.
+"""
+from __future__ import annotations
+
+from collections.abc import Hashable
+
+import numpy as np
+
+from .bayes import ClassNetwork
+from .counting import Counting
+from .recognition import Recognition
+
+
+def choose_pair(networks: dict[Hashable, ClassNetwork], counting: Counting, rec: Recognition, true: frozenset,
+                entropy: dict, redundancy: int = 1) -> tuple[tuple | None, list[set]]:
+    """((c, d, KSD_{c,d}) of the least-well-discriminated pair of a class c with residual entropy
+    and a class d on the other side of the truth (eq. 5.1), or None if no class is uncertain or no
+    such pair exists; the carriers that count as used, one set per pair scored (k > 1 only))."""
+    k = redundancy
+    labels = list(networks)
+    pairs = []  # (c, the classes d, c's carriers)
+    for c in labels:
+        if entropy.get(c, 0.0) <= 0 and not (k > 1 and c in true):
+            continue
+        others = [d for d in labels if (d in true) != (c in true)]
+        if others:
+            pairs.append((c, others, [f for f in networks[c].features if k > 1 or f in rec.values]))
+    rows = [(c, d, f) for c, others, carriers in pairs for d in others for f in carriers]
+    powers = counting.pair_powers(networks, rows) if rows else None  # rows c, d, f in one batch
+    best, used, start = None, [], 0
+    for c, others, carriers in pairs:
+        if carriers:
+            block = powers[start : start + len(others) * len(carriers)].view(len(others), len(carriers))
+            start += block.numel()
+            strongest = [p.topk(min(k, len(p))) for p in block]
+            scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
+            if k > 1:
+                used.append({carriers[i] for top in strongest for i in top.indices.tolist()})
+        else:
+            scores = [0.0] * len(others)
+        j = int(np.argmin(scores))
+        if best is None or scores[j] < best[2]:
+            best = (c, others[j], scores[j])
+    return best, used

@@ -1,0 +1,85 @@
+"""The feature-value cache of an image set: part of a run's state."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from .checkpoint import decode_array, encode_array, stored_position
+from .errors import InputError
+from .features import Feature, FeatureTable, unpack_features
+from .instances import GrowingTable
+
+
+class ValueCache:
+    """Feature values (eq. 3.14) of ``images`` images: one row per feature, in the order first
+    asked for, one float64 column per image, NaN where not yet measured.
+
+    Each (feature, image) value is computed once, in one batch with the other values missing at
+    that call, and never recomputed. A call for one image (a recognition) computes its missing
+    features on all images. Batched float arithmetic may differ in the last bit with the batch's
+    composition, so this rule is what makes a run reproducible and resumable bit for bit: the
+    cache is part of a run's state (:meth:`state_dict`).
+    """
+
+    def __init__(self, images: int):
+        self.images = images
+        self._row: dict[Feature, int] = {}
+        self._table = GrowingTable(images)
+
+    def __len__(self) -> int:
+        return len(self._row)
+
+    def values(self, features: Sequence[Feature], images: Sequence[int],
+               compute: Callable[[list[Feature], list[int]], np.ndarray]) -> np.ndarray:
+        """Values (F, len(images)): cached ones as they are, missing ones by one call of
+        ``compute(features, images)``, which returns their values (F, len(images))."""
+        features, images = list(features), list(images)
+        for f in features:
+            if f not in self._row:
+                self._row[f] = len(self._row)
+        if len(self._row) > self._table.rows:
+            self._table.add_rows(np.full((len(self._row) - self._table.rows, self.images), np.nan))
+        table = self._table.array
+        rows = np.array([self._row[f] for f in features], dtype=np.int64)
+        block = table[np.ix_(rows, images)]
+        missing = [features[j] for j in np.flatnonzero(np.isnan(block).any(1))]
+        if missing:
+            missing = list(dict.fromkeys(missing))
+            # one image asked for (a recognition): measure the missing features on every image at
+            # once, since recognizing the others will ask for them too and a batch costs far less
+            batch = list(range(self.images)) if len(images) == 1 else images
+            computed = compute(missing, batch)
+            for f, row in zip(missing, computed):
+                current = table[self._row[f], batch]
+                table[self._row[f], batch] = np.where(np.isnan(current), row, current)
+            block = table[np.ix_(rows, images)]
+        return block
+
+    def state_dict(self, table: FeatureTable | None = None) -> dict:
+        """The cache as JSON-ready data: the features, by position in ``table`` (or in a table of
+        its own, written as "table"), and the exact values."""
+        own = table is None
+        table = FeatureTable() if own else table
+        features = list(self._row)  # in row order: rows are only ever added
+        state = {"features": [table.index(f) for f in features], "values": encode_array(self._table.array[: len(features)])}
+        if own:
+            state["table"] = table.pack()
+        return state
+
+    def load_state_dict(self, state: dict, features: list[Feature] | None = None) -> None:
+        """Restore a cache written by :meth:`state_dict` for the same images (``features``: the
+        table it was written against, where the caller kept one)."""
+        try:
+            known = unpack_features(state["table"]) if features is None else features
+            features = [known[stored_position(i, len(known))] for i in state["features"]]
+            values = decode_array(state["values"])
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
+            raise InputError(f"value cache is damaged: {err}") from None
+        if values.shape != (len(features), self.images):
+            raise InputError(f"value cache holds {values.shape}, expected ({len(features)}, {self.images}) for this image set")
+        if not np.all(np.isnan(values) | ((values >= 0) & (values <= 1 + 1e-6))):  # NaN: not yet measured
+            raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
+        self._row = {f: i for i, f in enumerate(features)}
+        self._table = GrowingTable(self.images)
+        self._table.add_rows(values)

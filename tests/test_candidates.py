@@ -1,0 +1,59 @@
+"""Alg. 4.10's five methods (ftorch/candidates.py), each against its definition."""
+import numpy as np
+import torch
+
+from ftorch.bayes import ClassNetwork
+from ftorch.candidates import CandidateGenerator, in_use
+from ftorch.environment import ImageSet
+from ftorch.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
+from ftorch.primitives import PartKind
+from tests.test_learner import shape
+
+
+def _setting():
+    rng = np.random.default_rng(0)
+    env = ImageSet([shape(k % 3, rng.uniform(0, 6.3), rng) for k in range(6)], [{k % 3} for k in range(6)])
+    texel = lambda x: Texel([x] + [0.0] * 14)  # noqa: E731
+    networks = {c: ClassNetwork(c) for c in range(3)}
+    for c, features in ((0, [texel(1.0), texel(2.0)]), (1, [texel(2.0), texel(3.0)]), (2, [texel(4.0)])):
+        for f in features:
+            networks[c].add_feature(f, [], [], threshold=0.5)
+    return env, networks, texel
+
+
+def test_method_1_reuses_only_features_of_unrelated_classes():
+    env, networks, texel = _setting()
+    generate = CandidateGenerator(torch.Generator().manual_seed(0))
+    made = generate(1, 50, networks, env, 0, 0, frozenset({1}), [])
+    assert len(made) == 50 and set(made) == {texel(4.0)}  # 1.0-3.0 belong to class 0 or 1
+    assert generate(1, 5, networks, env, 0, 0, frozenset({1, 2}), []) == [] and generate.sampled == 0
+
+
+def test_methods_2_and_3_sample_from_the_sample_image_and_count_what_they_sample():
+    env, networks, texel = _setting()
+    generate = CandidateGenerator(torch.Generator().manual_seed(1))
+    primitives = generate(2, 40, networks, env, 3, 0, frozenset({1}), [])
+    kinds = {f.parts[0].kind if isinstance(f, Geometric) else PartKind.TEXEL for f in primitives}
+    assert all(isinstance(f, LocalFeature) for f in primitives) and kinds == {PartKind.TEXEL, PartKind.EDGEL}
+    assert generate.sampled == len(primitives) > 30
+    assert np.allclose(env.values(primitives, [3]), 1.0, atol=1e-5)  # each is found at its own point in image 3
+    expanded = generate(3, 10, networks, env, 3, 0, frozenset({1}), primitives[:2])
+    assert expanded and all(isinstance(f, Geometric) for f in expanded)
+    assert generate.sampled == len(primitives) + len(expanded)
+
+
+def test_methods_4_and_5_combine_two_different_features_in_use_or_failed():
+    env, networks, texel = _setting()
+    generate = CandidateGenerator(torch.Generator().manual_seed(2))
+    pool = set(in_use(networks)) | {texel(9.0)}
+    for method, kind in ((4, Conjunction), (5, Disjunction)):
+        made = generate(method, 30, networks, env, 0, 0, frozenset({1}), [texel(9.0)])
+        assert len(made) == 30 and all(isinstance(f, kind) and f.a != f.b and {f.a, f.b} <= pool for f in made)
+    assert generate.sampled == 0 and generate(4, 5, {0: ClassNetwork(0)}, env, 0, 0, frozenset(), []) == []
+
+
+def test_same_generator_state_same_candidates():
+    env, networks, _ = _setting()
+    runs = [CandidateGenerator(torch.Generator().manual_seed(3)) for _ in range(2)]
+    first, second = ([g(m, 10, networks, env, 1, 0, frozenset({1}), []) for m in range(1, 6)] for g in runs)
+    assert first == second
