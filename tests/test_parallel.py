@@ -10,6 +10,8 @@ from ftorch.errors import InputError
 from training import run
 from training.parallel import TasksFailed, run_tasks
 
+from .test_protocol import check_events
+
 ARGS = ["recognize", "--task", "plym", "--classes", "3", "--size", "32", "--folds", "2", "--seed", "1",
         "--device", "cpu", "--quiet", "--stages", "0", "--max-cycles", "3"]
 
@@ -55,9 +57,10 @@ def test_two_workers_write_the_sequential_report(tmp_path):
     assert run.main([*ARGS, "--out", str(tmp_path / "one")]) == 0
     assert run.main([*ARGS, "--out", str(tmp_path / "two"), "--workers", "2"]) == 0
     assert report_text(tmp_path / "one") == report_text(tmp_path / "two")
+    report = json.loads((tmp_path / "two" / "report.json").read_text())
     for k in (1, 2):  # each task wrote its own complete fold folder and TensorBoard run
         assert (tmp_path / "two" / f"fold{k}" / "learner.json").is_file()
-        assert list((tmp_path / "two" / "tensorboard" / f"fold{k}").glob("events.out.tfevents.*"))
+        check_events(tmp_path / "two" / "tensorboard" / f"fold{k}", report["folds"][k - 1], report["config"])
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")

@@ -18,6 +18,7 @@ from ftorch.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.learner import DistinctiveFeatureLearner
 from training import run
+from training.curves import figure_rgb, fold_curves_figure
 from training.datasets import Task, plym_task
 from training.protocol import Fold, FoldState, RunConfig, next_target
 from training.report import growth, seed_study
@@ -134,11 +135,12 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     assert len(bif.nodes()) == len(learner.networks["cube"].features) + 1
     assert "table 5.1 form" in markdown and "every stage" in markdown and "curves.png" in markdown
     assert cv2.imread(str(tmp_path / "a" / "curves.png")) is not None
-    check_events(tmp_path / "a" / "tensorboard" / "fold1", a["folds"][0])
+    check_events(tmp_path / "a" / "tensorboard" / "fold1", a["folds"][0], a["config"])
 
 
-def check_events(folder, fold: dict) -> None:
-    """Every documented TensorBoard tag is there, with the report's values at each stage."""
+def check_events(folder, fold: dict, config: dict) -> None:
+    """Every documented TensorBoard tag is there, with the report's values at each stage, and the
+    fold's stage curves (the report's, drawn again) at its final stage."""
     events = EventAccumulator(str(folder), size_guidance={"scalars": 0, "images": 0})
     events.Reload()
     tags = set(events.Tags()["scalars"])
@@ -156,6 +158,10 @@ def check_events(folder, fold: dict) -> None:
     assert events.Scalars("hparam/accuracy")[0].value == pytest.approx(stages[-1]["test"]["accuracy"])
     assert "_hparams_/session_start_info" in events.PluginTagToContent("hparams")
     assert "features/features" in events.Tags()["images"]
+    [curves] = events.Images("figures/curves")
+    drawn = cv2.cvtColor(cv2.imdecode(np.frombuffer(curves.encoded_image_string, np.uint8), cv2.IMREAD_COLOR),
+                         cv2.COLOR_BGR2RGB)
+    assert curves.step == stages[-1]["step"] and np.array_equal(drawn, figure_rgb(fold_curves_figure(fold, config)))
 
 
 def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task, tmp_path, capsys):
@@ -282,7 +288,7 @@ def test_seeds_and_incremental_commands(tmp_path, capsys):
     assert report["config"]["incremental"] and [s["classes"] for s in report["folds"][0]["stages"]] == [2, 3]
     markdown = (tmp_path / "i" / "report.md").read_text()
     assert "figure 5.13 form" in markdown and "incremental, alg. 5.4" in markdown
-    check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0])
+    check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0], report["config"])
 
 
 def test_the_run_config_defaults_to_the_library_learner_and_the_fold_state_is_checked():

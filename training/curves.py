@@ -1,7 +1,9 @@
 """Figure 5.1 (and 5.11 for incremental tasks) drawn with matplotlib: per fold, against the stage,
 the test outcome proportions with t_KSD written at each stage (boxed where the target was met),
 the feature counts, and the features sampled so far. Every panel has labelled axes and a legend;
-the figure's title names the task and the seed."""
+the figure's title names the task and the seed. The ``*_figure`` functions return the matplotlib
+figure: :func:`figure_rgb` renders it for PNG files, ``SummaryWriter.add_figure`` for TensorBoard
+(both close it)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,13 +13,14 @@ import matplotlib
 matplotlib.use("Agg")  # files and TensorBoard only, never a window
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from ftorch.draw import save_rgb  # noqa: E402
 
 OUTCOMES = ("accuracy", "correct", "ambiguous", "ignorant", "wrong")
 
 
-def figure_rgb(figure) -> np.ndarray:
+def figure_rgb(figure: Figure) -> np.ndarray:
     """A matplotlib figure as an RGB uint8 array (H, W, 3), closed afterwards."""
     figure.canvas.draw()
     picture = np.asarray(figure.canvas.buffer_rgba())[..., :3].copy()
@@ -54,23 +57,40 @@ def _panels(axes, fold: dict) -> None:
     axes[-1].set_xlabel("stage (its running number in the fold)")
 
 
-def curves_figure(report: dict) -> np.ndarray:
-    """The folds' figure 5.1 curves side by side, titled with the task and the seed; RGB uint8."""
-    folds = report["folds"]
-    incremental = any(f["stages"] and f["stages"][0].get("classes") != f["stages"][-1].get("classes") for f in folds)
+def _incremental(folds: list[dict]) -> bool:
+    """Whether any fold's stages teach more classes (figure 5.11's extra row of panels)."""
+    return any(f["stages"] and f["stages"][0].get("classes") != f["stages"][-1].get("classes") for f in folds)
+
+
+def _curves(folds: list[dict], title: str, incremental: bool) -> Figure:
     rows = 4 if incremental else 3
     figure, axes = plt.subplots(rows, len(folds), figsize=(5.2 * len(folds), 2.6 * rows), squeeze=False, dpi=100)
     for k, fold in enumerate(folds):
         _panels(axes[:, k], fold)
-    config = report.get("config", {})
-    figure.suptitle(f"{config.get('task', 'task')}{'-inc' if config.get('incremental') else ''}, seed "
-                    f"{config.get('seed', '?')}: figure {'5.11' if incremental else '5.1'} form", fontsize=11)
+    figure.suptitle(f"{title}: figure {'5.11' if incremental else '5.1'} form", fontsize=11)
     figure.tight_layout()
-    return figure_rgb(figure)
+    return figure
+
+
+def _title(config: dict) -> str:
+    return f"{config.get('task', 'task')}{'-inc' if config.get('incremental') else ''}, seed {config.get('seed', '?')}"
+
+
+def curves_figure(report: dict) -> Figure:
+    """The folds' figure 5.1 curves side by side, titled with the task and the seed (a matplotlib
+    figure)."""
+    folds = report["folds"]
+    return _curves(folds, _title(report.get("config", {})), _incremental(folds))
+
+
+def fold_curves_figure(fold: dict, config: dict) -> Figure:
+    """One fold's report entry in the form of :func:`curves_figure` (its column of panels), titled
+    with the task, the seed and the fold (a matplotlib figure, for the fold's TensorBoard run)."""
+    return _curves([fold], f"{_title(config)}, fold {fold['fold']}", _incremental([fold]))
 
 
 def write_curves(out: Path, report: dict) -> Path:
     """``out``/curves.png: :func:`curves_figure`."""
     path = out / "curves.png"
-    save_rgb(path, curves_figure(report))
+    save_rgb(path, figure_rgb(curves_figure(report)))
     return path

@@ -50,7 +50,7 @@ from training.devices import resolve_device
 from training.outputs import run_folder, writable_folder
 from training.parallel import TasksFailed, run_tasks
 from training.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.curves import write_curves
+from training.curves import fold_curves_figure, write_curves
 from training.grasping.command import add_parser as add_grasp_parser
 from training.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
 from training.report import COLUMNS, ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
@@ -236,8 +236,9 @@ def learner_options(args) -> dict:
 
 
 def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
-    """Hyper-parameters with the final results (add_hparams, in the fold's own run) and the
-    learned features as images (figure 5.2)."""
+    """Hyper-parameters with the final results (add_hparams, in the fold's own run), the learned
+    features as images (figure 5.2) and the fold's stage curves (figure 5.1, ``figures/curves``),
+    all at the final stage."""
     final = entry["stages"][-1]
     hparams = {k: v for k, v in config.to_dict().items() if isinstance(v, (int, float, str, bool))}
     metrics = {"hparam/accuracy": final["test"]["accuracy"], "hparam/correct": final["test"]["correct"],
@@ -246,6 +247,7 @@ def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np
     writer.add_hparams(hparams, metrics, run_name=".", global_step=final["step"])
     for name, picture in pictures:
         writer.add_image(f"features/{name}", picture, final["step"], dataformats="HWC")
+    writer.add_figure("figures/curves", fold_curves_figure(entry, config.to_dict()), final["step"])
 
 
 _TASKS: dict[tuple, Task] = {}  # data sets loaded in this process, by their load_task arguments

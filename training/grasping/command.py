@@ -14,6 +14,7 @@ from ftorch.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
 from ftorch.grasp import FINGER_CHOICES, MU0_CAP, GraspLearner
 from training.arguments import MAX_SEED, at_least, number, seed
+from training.curves import figure_rgb
 from training.devices import resolve_device
 from training.outputs import run_folder
 from training.parallel import TasksFailed, run_tasks
@@ -60,8 +61,9 @@ def config(args, device) -> dict:
             "device": str(device)}
 
 
-def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict[str, np.ndarray]) -> None:
-    """Per-epoch scalars, the test histograms and their summaries, hyper-parameters and figures."""
+def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict) -> None:
+    """Per-epoch scalars, the test histograms and their summaries, hyper-parameters and figures:
+    matplotlib charts with ``add_figure`` (which closes them), RGB pictures with ``add_image``."""
     for entry in fold.epochs:
         for tag in ("mistakes", "poor", "features_2", "features_3", "sampled_2", "sampled_3"):
             writer.add_scalar(f"train/{tag}", entry[tag], entry["epoch"])
@@ -83,7 +85,10 @@ def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures
                "hparam/poor_haptic": res["poor_grasp_fraction"]["haptic"], "hparam/poor_cued": res["poor_grasp_fraction"]["cued"]}
     writer.add_hparams(hparams, metrics, run_name=".", global_step=step)
     for name, picture in pictures.items():
-        writer.add_image(f"figures/{name}", picture, step, dataformats="HWC")
+        if isinstance(picture, np.ndarray):
+            writer.add_image(f"figures/{name}", picture, step, dataformats="HWC")
+        else:
+            writer.add_figure(f"figures/{name}", picture, step)
 
 
 def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np.ndarray:
@@ -149,11 +154,11 @@ def seed_task(job: dict) -> dict:
                 print(f"seed {seed} fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} "
                       f"mistakes; {last['features_2']} + {last['features_3']} features")
     offline = evaluations["offline"]
-    save_rgb(out / "errors.png", error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
-                                              f"{args.experiment}, seed {seed}: orientation errors (figure 6.13)"))
-    save_rgb(out / "grasps.png", grasp_figure(grasp_columns(offline, args.experiment),
-                                              f"{args.experiment}, seed {seed}: probes and mu_0, haptic only vs cued "
-                                              "(figures 6.14, 6.17)"))
+    save_rgb(out / "errors.png", figure_rgb(error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
+                                                         f"{args.experiment}, seed {seed}: orientation errors (figure 6.13)")))
+    save_rgb(out / "grasps.png", figure_rgb(grasp_figure(grasp_columns(offline, args.experiment),
+                                                         f"{args.experiment}, seed {seed}: probes and mu_0, haptic only vs "
+                                                         "cued (figures 6.14, 6.17)")))
     figures = ["errors.png", "grasps.png", *figures]
     report = {"config": settings, "device": str(device), "seconds": time.perf_counter() - start, **results(offline)}
     if args.online:
@@ -189,7 +194,8 @@ def grasp_command(args) -> int:
     if args.seeds > 1:
         report["seeds"] = seed_study(reports)
         report["seconds"] = time.perf_counter() - start
-        save_rgb(out / "reductions.png", reduction_figure(report["seeds"], f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}"))
+        save_rgb(out / "reductions.png", figure_rgb(reduction_figure(report["seeds"],
+                                                                     f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}")))
         report["figures"] = [*report["figures"], "reductions.png"]
         write_json(out / "report.json", report)
         write_markdown(out / "report.md", report, report["figures"])

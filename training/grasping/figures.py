@@ -1,11 +1,13 @@
-"""Histograms in the form of figures 6.13, 6.14 and 6.17, drawn with matplotlib (RGB arrays for
-PNG files and TensorBoard): labelled axes, the count of grasps in each legend, titled by the caller
+"""Histograms in the form of figures 6.13, 6.14 and 6.17, drawn with matplotlib (figures: rendered
+with :func:`training.curves.figure_rgb` for PNG files, given to ``SummaryWriter.add_figure`` for
+TensorBoard): labelled axes, the count of grasps in each legend, titled by the caller
 with the experiment, the seed and the fold."""
 from __future__ import annotations
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from training.curves import figure_rgb, plt
+from training.curves import plt
 
 ERROR_BINS = np.arange(0, 65, 5.0)    # degrees; the last bin holds everything above 60 (figure 6.13)
 PROBE_BINS = np.arange(1, 21, 1.0)    # the last bin holds 20 probes or more (figure 6.14)
@@ -31,17 +33,17 @@ def _histogram(ax, values, bins: np.ndarray, xlabel: str, label: str, colour: st
     ax.legend(fontsize=7)
 
 
-def error_figure(errors: list, title: str) -> np.ndarray:
+def error_figure(errors: list, title: str) -> Figure:
     """Figure 6.13: prediction error magnitudes (degrees; no prediction counts in the last bin)."""
     figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
     _histogram(ax, errors, ERROR_BINS, "orientation error, degrees (last bin: > 60, none)",
                "test grasps", "C0")
     ax.set_title(title, fontsize=9)
     figure.tight_layout()
-    return figure_rgb(figure)
+    return figure
 
 
-def grasp_figure(columns: dict[str, list[dict]], title: str) -> np.ndarray:
+def grasp_figure(columns: dict[str, list[dict]], title: str) -> Figure:
     """Figures 6.14 and 6.17: per column of grasps, the probes (top) and mu_0 (bottom) histograms."""
     figure, axes = plt.subplots(2, len(columns), figsize=(3.4 * len(columns), 5.2), squeeze=False, dpi=100)
     for n, (name, grasps) in enumerate(columns.items()):
@@ -51,10 +53,10 @@ def grasp_figure(columns: dict[str, list[dict]], title: str) -> np.ndarray:
         axes[0, n].set_title(name, fontsize=9)
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()
-    return figure_rgb(figure)
+    return figure
 
 
-def reduction_figure(study: dict, title: str) -> np.ndarray:
+def reduction_figure(study: dict, title: str) -> Figure:
     """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent."""
     figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
     bins = np.arange(-20, 105, 5.0)
@@ -67,4 +69,4 @@ def reduction_figure(study: dict, title: str) -> np.ndarray:
     ax.legend(fontsize=7)
     ax.set_title(title, fontsize=9)
     figure.tight_layout()
-    return figure_rgb(figure)
+    return figure
