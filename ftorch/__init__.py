@@ -1,12 +1,19 @@
-"""ftorch: task-driven visual feature learning (Piater 2001) as batched torch modules."""
+"""ftorch: task-driven visual feature learning (Piater 2001) as batched torch modules.
+
+One package per part of the thesis, in the order data flows through them: :mod:`ftorch.space`
+(chapter 3, the feature space), :mod:`ftorch.recognition` (chapters 4-5, recognition and expert
+learning) and :mod:`ftorch.grasp` (chapter 6, grasp pre-shaping); input rules, errors and
+checkpoints are shared by all three.
+"""
 from .errors import InputError
+from .grasp import GraspLearner
 from .images import as_image_batch, load_image
-from .primitives import BLOB, CORNER, EDGEL, PartKind
-from .record import FeatureSpace, ImageRecords
-from .salient import SalientPoints
-from .scale_space import ScaleSpace, ScaleSpaceOutput
+from .recognition import DistinctiveFeatureLearner, ImageSet
+from .space import (BLOB, CORNER, EDGEL, FeatureSpace, ImageRecords, PartKind, SalientPoints, ScaleSpace,
+                    ScaleSpaceOutput, feature_values)
 
 __all__ = [
-    "BLOB", "CORNER", "EDGEL", "FeatureSpace", "ImageRecords", "InputError", "PartKind", "SalientPoints",
-    "ScaleSpace", "ScaleSpaceOutput", "as_image_batch", "load_image",
+    "BLOB", "CORNER", "DistinctiveFeatureLearner", "EDGEL", "FeatureSpace", "GraspLearner", "ImageRecords", "ImageSet",
+    "InputError", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput", "as_image_batch", "feature_values",
+    "load_image",
 ]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from training.builtin import builtin_scene
+from training.data.builtin import builtin_scene
 
 COIL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coil-20-32"
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from training import perturb
-from training.augment import augment, overview, texture
+from training.data.augment import augment, overview, texture
 
 from .test_robustness import views
 
@@ -52,7 +52,7 @@ def test_procedural_texture_lies_in_the_stated_range_and_differs_per_draw():
 
 def test_runner_trains_on_the_copies_beside_the_originals(tmp_path, capsys):
     from training import run
-    from training.datasets import plym_task
+    from training.data.datasets import plym_task
 
     args = ["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1",
             "--max-cycles", "2", "--quiet", "--device", "cpu"]
@@ -74,7 +74,7 @@ def test_runner_trains_on_the_copies_beside_the_originals(tmp_path, capsys):
 
 
 def test_overview_shows_each_class_first_view_beside_its_copies():
-    from ftorch.environment import ImageSet
+    from ftorch.recognition.environment import ImageSet
 
     images, labels = views(shifts=range(2))
     copies, true = augment(images, labels, 2, seed=0, fold=1)

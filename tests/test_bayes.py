@@ -4,8 +4,8 @@ import warnings
 import numpy as np
 import pytest
 
-from ftorch.bayes import CLASS, ClassNetwork, compound_arcs
-from ftorch.features import Conjunction, Disjunction, Geometric, Part, Texel
+from ftorch.recognition.bayes import CLASS, ClassNetwork, compound_arcs
+from ftorch.space.features import Conjunction, Disjunction, Geometric, Part, Texel
 
 warnings.filterwarnings("ignore", category=FutureWarning)
 

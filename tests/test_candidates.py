@@ -1,12 +1,12 @@
-"""Alg. 4.10's five methods (ftorch/candidates.py), each against its definition."""
+"""Alg. 4.10's five methods (ftorch/recognition/candidates.py), each against its definition."""
 import numpy as np
 import torch
 
-from ftorch.bayes import ClassNetwork
-from ftorch.candidates import CandidateGenerator, in_use
-from ftorch.environment import ImageSet
-from ftorch.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
-from ftorch.primitives import PartKind
+from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.candidates import CandidateGenerator, in_use
+from ftorch.recognition.environment import ImageSet
+from ftorch.space.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
+from ftorch.space.primitives import PartKind
 from tests.test_learner import shape
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from ftorch.checkpoint import MAX_BYTES, ROWS, decode_array, decode_text, encode_array, encode_text, load_checkpoint
 from ftorch.errors import InputError
-from ftorch.features import CHUNK, Conjunction, FeatureTable, Geometric, Part, Texel, unpack_features
+from ftorch.space.features import CHUNK, Conjunction, FeatureTable, Geometric, Part, Texel, unpack_features
 
 
 def test_arrays_round_trip_exactly_in_float32_where_that_is_exact():

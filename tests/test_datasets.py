@@ -8,8 +8,8 @@ import torch
 
 from ftorch.errors import InputError
 from ftorch.images import load_image
-from training.datasets import coil_task, folder_task, load_task, plym_task
-from training.plym import OBJECTS, VIEWS, render, solid
+from training.data.datasets import coil_task, folder_task, load_task, plym_task
+from training.data.plym import OBJECTS, VIEWS, render, solid
 
 
 def test_coil_task_takes_consecutive_views_and_alternates_folds(coil_dir):

@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.evaluate import feature_values
-from ftorch.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
-from ftorch.generate import expand_geometric, random_edgel_pair, random_texel
-from ftorch.reference import reference_values
-from ftorch.sampling import sample_part
+from ftorch.space.evaluate import feature_values
+from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
+from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
+from ftorch.space.reference import reference_values
+from ftorch.space.sampling import sample_part
 
 from .conftest import random_image
 

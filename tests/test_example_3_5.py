@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.steering import steer
+from ftorch.space.steering import steer
 
 
 def cosine(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

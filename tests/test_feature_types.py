@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.bayes import ClassNetwork, compound_arcs
-from ftorch.draw import draw_features, feature_legend
+from ftorch.recognition.bayes import ClassNetwork, compound_arcs
+from ftorch.space.draw import draw_features, feature_legend
 from ftorch.errors import InputError
-from ftorch.evaluate import feature_values
-from ftorch.features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, Part, _CachedHash, unpack_features
-from ftorch.generate import random_texel
-from ftorch.primitives import PartKind
-from ftorch.reference import reference_values
+from ftorch.space.evaluate import feature_values
+from ftorch.space.features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, Part, _CachedHash, unpack_features
+from ftorch.space.generate import random_texel
+from ftorch.space.primitives import PartKind
+from ftorch.space.reference import reference_values
 
 from .conftest import random_image
 

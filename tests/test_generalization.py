@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from ftorch.bayes import ClassNetwork
+from ftorch.recognition.bayes import ClassNetwork
 from ftorch.errors import InputError
-from ftorch.ksd import distinctive_at
-from ftorch.learner import DistinctiveFeatureLearner
-from ftorch.recognition import Recognition, outcome, recognize, residual_entropy
+from ftorch.recognition.ksd import distinctive_at
+from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.inference import Recognition, outcome, recognize, residual_entropy
 
 from .test_learner import shapes  # noqa: F401  (fixture)
 from .test_recognition import two_class_networks
@@ -173,7 +173,7 @@ def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path,
 
 @pytest.mark.parametrize("position", [0.0, 0.25, 0.5, 1.0])
 def test_the_cut_position_moves_the_cut_point_within_its_gap_and_nothing_else(position):
-    from ftorch.ksd import ksd
+    from ftorch.recognition.ksd import ksd
     values = torch.tensor([[0.1, 0.2, 0.3, 0.7, 0.8, 0.9]], dtype=torch.float64)
     own = torch.tensor([False, False, False, True, True, True])
     middle, moved = ksd(values, own, ~own), ksd(values, own, ~own, position)

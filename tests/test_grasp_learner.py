@@ -1,4 +1,4 @@
-"""Alg. 6.1 and 6.2 (ftorch.grasp): angular errors, feature models against a brute-force re-derivation,
+"""Alg. 6.1 and 6.2 (ftorch.grasp.learner): angular errors, feature models against a brute-force re-derivation,
 discarding, learning on simulated grasps, reproducibility, bad input; and the ``grasp`` command."""
 import json
 import math
@@ -11,11 +11,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
-from ftorch.evaluate import feature_values
-from ftorch.features import Texel
-from ftorch.generate import random_edgel_pair
-from ftorch.grasp import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
-from ftorch.vonmises import fit_mixture
+from ftorch.space.evaluate import feature_values
+from ftorch.space.features import Texel
+from ftorch.space.generate import random_edgel_pair
+from ftorch.grasp.learner import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp.vonmises import fit_mixture
 from training import run
 from training.grasping.experiment import GraspFold, simulate_pool
 from training.grasping.haptics import HapticController
@@ -116,7 +116,7 @@ def test_same_seed_same_features_and_models(clean_pool):
 
 
 def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(clean_pool, monkeypatch):
-    import ftorch.grasp as grasp
+    import ftorch.grasp.learner as grasp
     learner = GraspLearner(math.radians(10), seed=0)
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(2)  # F_2 and F_3 now hold features
@@ -226,7 +226,7 @@ def test_grasp_seeds_in_processes_equal_the_sequential_study(tmp_path):
 
 
 def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_object_kind():
-    """Seed 1's failure (ftorch/grasp.py): on a square, f*_2 (the present feature of largest KSD) had
+    """Seed 1's failure (ftorch/grasp/learner.py): on a square, f*_2 (the present feature of largest KSD) had
     been present on few training images, mostly triangles grasped with two fingers (poor), so its
     E[mu_0] sent the square to three fingers. Pooling the present features by support must not."""
     mix = fit_mixture(np.array([0.1, 0.12, 0.11]))
@@ -252,7 +252,7 @@ def test_pooled_finger_choice_is_not_fooled_by_a_feature_seen_on_the_other_objec
 
 
 def _two_kind_set(rng, fingers, n=40):
-    """Seed 102's failure (ftorch/grasp.py, "quality"): every feature fires on both object kinds. Half the
+    """Seed 102's failure (ftorch/grasp/learner.py, "quality"): every feature fires on both object kinds. Half the
     instances are squares, half triangles; feature 0 predicts the hand orientation on both (offset 0.5)
     and is present on both (values 0.6-1), but responds more to squares (0.85-1) than to triangles
     (0.6-0.75); feature 1 responds at random. With two fingers squares are good grasps (mu_0 ~ .02),

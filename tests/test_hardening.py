@@ -16,12 +16,12 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace, InputError, as_image_batch
-from ftorch.bayes import ClassNetwork
+from ftorch.recognition.bayes import ClassNetwork
 from ftorch.checkpoint import decode_array, encode_array, write_atomic
-from ftorch.environment import ImageSet
-from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.recognition.environment import ImageSet
+from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training import coil, outputs, run
-from training.datasets import coil_task
+from training.data.datasets import coil_task
 
 from .test_learner import shape, train
 from .test_protocol import make_fold, small_task  # noqa: F401 (a fixture)

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace, InputError, ScaleSpace, as_image_batch, load_image
-from ftorch.features import Feature, Geometric, Part, Texel
+from ftorch.space.features import Feature, Geometric, Part, Texel
 
 
 def test_conversion_rules():

@@ -8,7 +8,7 @@ import pytest
 
 from ftorch.errors import InputError
 from training import run
-from training.parallel import TasksFailed, run_tasks
+from training.cli.parallel import TasksFailed, run_tasks
 
 from .test_protocol import check_events
 

@@ -14,14 +14,14 @@ from pgmpy.readwrite import BIFReader
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from ftorch import FeatureSpace
-from ftorch.environment import ImageSet
+from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.learner import DistinctiveFeatureLearner
+from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training import run
-from training.curves import figure_rgb, fold_curves_figure
-from training.datasets import Task, plym_task
-from training.protocol import Fold, FoldState, RunConfig, next_target
-from training.report import growth, seed_study
+from training.plots import figure_rgb, fold_curves_figure
+from training.data.datasets import Task, plym_task
+from training.recognition.protocol import Fold, FoldState, RunConfig, next_target
+from training.recognition.report import growth, seed_study
 
 CONFIG = RunConfig("plym4", seed=0, n_ex=5, n_fgen=10)
 

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from ftorch.bayes import ClassNetwork
-from ftorch.recognition import accuracy, outcome, recognize
+from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.inference import accuracy, outcome, recognize
 
 
 @pytest.mark.parametrize("recognized, true, expected", [

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from ftorch.errors import InputError
-from training.peers import PixelNN, SiftMatcher, score
-from training.perturb import GREY, KINDS, mask, perturb, save_examples
+from training.recognition.peers import PixelNN, SiftMatcher, score
+from training.data.perturb import GREY, KINDS, mask, perturb, save_examples
 
 from .conftest import random_image
 
@@ -180,7 +180,7 @@ def test_batched_sift_matching_equals_bfmatcher_view_by_view():
 def test_sift_ratio_test_is_per_view_and_skips_views_with_one_descriptor(monkeypatch):
     e = torch.eye(128, dtype=torch.float32)
     found = {0: e[:1], 1: torch.stack([e[0], 10 * e[1]]), 2: torch.stack([2 * e[1], 2.1 * e[1]]), 9: e[:1]}
-    monkeypatch.setattr("training.peers._descriptors", lambda image: found[int(image[0, 0])].numpy())
+    monkeypatch.setattr("training.recognition.peers._descriptors", lambda image: found[int(image[0, 0])].numpy())
     training = [torch.full((4, 4), float(k)) for k in range(3)]
     sift = SiftMatcher().fit(training, [frozenset({k}) for k in "abc"])
     # view a holds 1 descriptor (no ratio test), b a perfect match, c two neighbours at ratio 0.96

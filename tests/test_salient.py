@@ -4,8 +4,8 @@ import math
 import torch
 
 from ftorch import BLOB, EDGEL, FeatureSpace, PartKind
-from ftorch.kernels import kernel_radius
-from ftorch.steering import steer
+from ftorch.space.kernels import kernel_radius
+from ftorch.space.steering import steer
 
 from .conftest import random_image
 

@@ -7,9 +7,9 @@ import scipy.ndimage as ndi
 import torch
 
 from ftorch import ScaleSpace
-from ftorch.kernels import kernel_radius
-from ftorch.reference import scipy_basis
-from ftorch.steering import steer, steer_block
+from ftorch.space.kernels import kernel_radius
+from ftorch.space.reference import scipy_basis
+from ftorch.space.steering import steer, steer_block
 
 from .conftest import random_image
 

@@ -8,7 +8,7 @@ import torch
 from scipy import special, stats
 
 from ftorch.errors import InputError
-from ftorch.vonmises import VonMisesMixture, fit_mixture, fit_mixtures, kappa_ml, vonmises_log_pdf
+from ftorch.grasp.vonmises import VonMisesMixture, fit_mixture, fit_mixtures, kappa_ml, vonmises_log_pdf
 
 
 def _sample(mus, kappas, weights, n, seed):

@@ -6,7 +6,7 @@ Everything is measured in one run against baselines computed in the same run:
   both are checked against scipy at the tests' tolerance on one image.
 - record: the whole per-image record (pyramid, scale functions, salient points, descriptors).
 - texel / edgel_pair / edgel3 / geometric3 / boolean: (feature, image) evaluations per second,
-  the ratio to the per-point reference loop of ``ftorch.reference`` timed on a subset, and the
+  the ratio to the per-point reference loop of ``ftorch.space.reference`` timed on a subset, and the
   largest difference between the two there.
 Timings are the best of several repeats after a warm-up.
 
@@ -32,14 +32,14 @@ import torch
 
 from ftorch import FeatureSpace, ScaleSpace
 from ftorch.checkpoint import write_text
-from ftorch.bayes import ClassNetwork, information
-from ftorch.evaluate import feature_values
-from ftorch.features import Conjunction, Disjunction
-from ftorch.generate import expand_geometric, random_edgel_pair, random_texel
-from ftorch.kernels import derivative_kernels
-from ftorch.reference import reference_values, scipy_basis
-from training.builtin import builtin_scene
-from training.devices import resolve_device
+from ftorch.recognition.bayes import ClassNetwork, information
+from ftorch.space.evaluate import feature_values
+from ftorch.space.features import Conjunction, Disjunction
+from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
+from ftorch.space.kernels import derivative_kernels
+from ftorch.space.reference import reference_values, scipy_basis
+from training.data.builtin import builtin_scene
+from training.cli.devices import resolve_device
 
 TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
 

@@ -37,23 +37,23 @@ import torch
 
 from ftorch import FeatureSpace, load_image
 from ftorch.checkpoint import write_text
-from ftorch.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
-from ftorch.environment import ImageSet
+from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
+from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
-from ftorch.record import ImageRecords
-from training.augment import augment, overview as augmented_overview
-from training.arguments import MAX_SEED, Parser, at_least, number, seed
-from training.builtin import builtin_scene
-from training.datasets import Task, load_task
-from training.devices import resolve_device
-from training.outputs import run_folder, writable_folder
-from training.parallel import TasksFailed, run_tasks
-from training.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.curves import fold_curves_figure, write_curves
+from ftorch.recognition.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
+from ftorch.space.record import ImageRecords
+from training.data.augment import augment, overview as augmented_overview
+from training.cli.arguments import MAX_SEED, Parser, at_least, number, seed
+from training.data.builtin import builtin_scene
+from training.data.datasets import Task, load_task
+from training.cli.devices import resolve_device
+from training.cli.outputs import run_folder, writable_folder
+from training.cli.parallel import TasksFailed, run_tasks
+from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
+from training.plots import fold_curves_figure, write_curves
 from training.grasping.command import add_parser as add_grasp_parser
-from training.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
-from training.report import COLUMNS, ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
+from training.recognition.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
+from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
 
 
 def salient(args) -> int:
@@ -92,7 +92,7 @@ def salient(args) -> int:
 
 def _image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,
                seed: int = 0, fold: int = 0, records: ImageRecords | None = None) -> ImageSet:
-    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.augment);
+    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.data.augment);
     ``records``: the views' records where they were computed before (without copies only)."""
     # with copies the views are loaded here once, for the copies and the set alike
     images = [task.view(i) if copies else task.images[i] for i in indices]
@@ -231,7 +231,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
 
 
 def learner_options(args) -> dict:
-    """The learner's generalization options from the command line (ftorch.learner.OPTIONS)."""
+    """The learner's generalization options from the command line (ftorch.recognition.learner.OPTIONS)."""
     return {k: getattr(args, k) for k in OPTIONS}
 
 
@@ -377,7 +377,7 @@ def _perturbations(text: str) -> list[str]:
 
 
 def robustness_command(args) -> int:
-    """The robustness benchmark on a recognize run's folds (training/robustness.py)."""
+    """The robustness benchmark on a recognize run's folds (training/recognition/robustness.py)."""
     device = resolve_device(args.device)
     kinds = _perturbations(args.perturb)
     if args.test_information is not None:
@@ -461,7 +461,7 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
     p.add_argument("--augment", type=at_least(0, "a number of copies", 100), default=0, metavar="N",
                    help="also train on N perturbed copies of each training view: rotated and scaled, half of them "
-                        "occluded, half on procedural clutter (training/augment.py; default 0)")
+                        "occluded, half on procedural clutter (training/data/augment.py; default 0)")
     p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")

@@ -10,15 +10,15 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.draw import draw_features, grid, save_rgb, titled
+from ftorch.space.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
-from ftorch.grasp import FINGER_CHOICES, MU0_CAP, GraspLearner
-from training.arguments import MAX_SEED, at_least, number, seed
-from training.curves import figure_rgb
-from training.devices import resolve_device
-from training.outputs import run_folder
-from training.parallel import TasksFailed, run_tasks
-from training.report import write_json
+from ftorch.grasp.learner import FINGER_CHOICES, MU0_CAP, GraspLearner
+from training.cli.arguments import MAX_SEED, at_least, number, seed
+from training.plots import figure_rgb
+from training.cli.devices import resolve_device
+from training.cli.outputs import run_folder
+from training.cli.parallel import TasksFailed, run_tasks
+from training.recognition.report import write_json
 
 from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
 from .haptics import HapticController
@@ -49,7 +49,7 @@ def _split(args) -> float | None:
 
 
 def _quality(split: np.ndarray) -> dict | None:
-    """A feature's quality split for the report (ftorch/grasp.py), None where it has none."""
+    """A feature's quality split for the report (ftorch/grasp/learner.py), None where it has none."""
     power, cut, above, below = (float(v) for v in split)
     return {"ksd": power, "cut": cut, "mu0_above": above, "mu0_below": below} if power > 0 else None
 
@@ -112,7 +112,7 @@ def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np
 def seed_task(job: dict) -> dict:
     """One seed of the experiment: every fold, off-line (and on-line), into ``job['out']`` (report,
     figures) and TensorBoard ``job['logdir']``/foldK; returns its report. Picklable, for local
-    processes and Ray (training/parallel.py)."""
+    processes and Ray (training/cli/parallel.py)."""
     from torch.utils.tensorboard import SummaryWriter
 
     args, seed = argparse.Namespace(**job["args"]), job["seed"]
@@ -231,7 +231,7 @@ def add_parser(commands) -> None:
     p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="quality",
                    help="alg. 6.2 step 2b: quality (default): per set, the mean mu_0 on the image's side of the best "
                         "quality split, and quality mistakes learned from; pooled: E[mu_0] over every present feature, "
-                        "weighted by its support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp.py)")
+                        "weighted by its support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp/learner.py)")
     p.add_argument("--mu0-split", type=number, default=POOR_MU0,
                    help=f"for --finger-choice quality: the mu_0 dividing good from poor grasps (default {POOR_MU0}, "
                         "the protocol's split between the two modes of figure 6.17)")

@@ -36,8 +36,8 @@ import torch
 from tqdm import tqdm
 
 from ftorch import FeatureSpace
-from ftorch.grasp import Experience, GraspLearner, angular_error
-from ftorch.record import ImageRecords
+from ftorch.grasp.learner import Experience, GraspLearner, angular_error
+from ftorch.space.record import ImageRecords
 
 from .camera import render
 from .haptics import GraspOutcome, HapticController, symmetry_period

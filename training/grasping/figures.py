@@ -1,5 +1,5 @@
 """Histograms in the form of figures 6.13, 6.14 and 6.17, drawn with matplotlib (figures: rendered
-with :func:`training.curves.figure_rgb` for PNG files, given to ``SummaryWriter.add_figure`` for
+with :func:`training.plots.figure_rgb` for PNG files, given to ``SummaryWriter.add_figure`` for
 TensorBoard): labelled axes, the count of grasps in each legend, titled by the caller
 with the experiment, the seed and the fold."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from training.curves import plt
+from training.plots import plt
 
 ERROR_BINS = np.arange(0, 65, 5.0)    # degrees; the last bin holds everything above 60 (figure 6.13)
 PROBE_BINS = np.arange(1, 21, 1.0)    # the last bin holds 20 probes or more (figure 6.14)

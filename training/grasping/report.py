@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from ftorch.checkpoint import write_text
-from ftorch.grasp import MU0_CAP
+from ftorch.grasp.learner import MU0_CAP
 
 from .experiment import POOR_MU0
 

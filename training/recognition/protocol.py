@@ -32,11 +32,11 @@ import torch
 from tqdm import tqdm
 
 from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
-from ftorch.environment import ImageSet
+from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.features import FeatureTable, unpack_features
-from ftorch.learner import OPTIONS, DistinctiveFeatureLearner
-from ftorch.recognition import Recognition, accuracy, outcome
+from ftorch.space.features import FeatureTable, unpack_features
+from ftorch.recognition.learner import OPTIONS, DistinctiveFeatureLearner
+from ftorch.recognition.inference import Recognition, accuracy, outcome
 
 OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
 FOLD_KIND = "fold"

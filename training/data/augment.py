@@ -1,6 +1,6 @@
 """Augmented training views (``--augment N``): perturbed copies the learner is trained on beside the
 originals, so that a feature must stay distinctive under the changes the robustness benchmark
-(:mod:`training.perturb`) applies to test views.
+(:mod:`training.data.perturb`) applies to test views.
 
 Each copy of a view is rotated in the plane by U(0, 360) degrees and scaled by U(0.75, 1) (the
 ``rotate`` family); then, each with probability 1/2, a grey square of U(0.1, 0.3) x the object's
@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import torch
 
-from ftorch.draw import grid, panel, titled
-from ftorch.environment import ImageSet
+from ftorch.space.draw import grid, panel, titled
+from ftorch.recognition.environment import ImageSet
 
 from .perturb import occlude, paste, rotate
 

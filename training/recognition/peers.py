@@ -17,7 +17,7 @@ import torch
 
 from ftorch.errors import InputError
 from ftorch.images import to_uint8
-from ftorch.recognition import Recognition
+from ftorch.recognition.inference import Recognition
 
 from .protocol import test_block
 

@@ -1,4 +1,4 @@
-"""``python -m training.coil ARCHIVE --out DIR [--size N]``: the COIL-20 folder from the official archive.
+"""``python -m training.data.coil ARCHIVE --out DIR [--size N]``: the COIL-20 folder from the official archive.
 
 COIL-20 (Nene, Nayar and Murase, Technical Report CUCS-005-96, 1996) is distributed by Columbia
 University's CAVE lab for research use: download ``coil-20-proc.zip`` (the processed images: 20
@@ -22,9 +22,9 @@ import numpy as np
 
 from ftorch.checkpoint import write_atomic
 from ftorch.errors import InputError
-from training.arguments import Parser, at_least
-from training.datasets import COIL_NAME
-from training.outputs import writable_folder
+from training.cli.arguments import Parser, at_least
+from training.data.datasets import COIL_NAME
+from training.cli.outputs import writable_folder
 
 OBJECTS, VIEWS, SIDE = 20, 72, 128
 
@@ -75,7 +75,7 @@ def prepare(archive, out, size: int = SIDE) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = Parser(prog="python -m training.coil", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m training.data.coil", description=__doc__.split("\n\n")[0])
     p.add_argument("archive", help="coil-20-proc.zip as downloaded from Columbia's CAVE lab")
     p.add_argument("--out", required=True, help="folder for obj{k}__{view}.png (created; then --data OUT)")
     p.add_argument("--size", type=at_least(9, "an image side in pixels"), default=SIDE,

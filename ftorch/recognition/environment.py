@@ -1,6 +1,6 @@
 """The task environment the learner acts in (4.4): labelled images and their records.
 
-Feature values come through the set's :class:`~ftorch.value_cache.ValueCache`, which computes
+Feature values come through the set's :class:`~ftorch.recognition.value_cache.ValueCache`, which computes
 each value once and is part of a run's state (:meth:`ImageSet.cache_state`).
 """
 from __future__ import annotations
@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .errors import InputError
-from .evaluate import feature_values
-from .features import Feature, FeatureTable
-from .images import as_image_batch, load_image
-from .record import FeatureSpace, ImageRecords
+from ..errors import InputError
+from ..images import as_image_batch, load_image
+from ..space.evaluate import feature_values
+from ..space.features import Feature, FeatureTable
+from ..space.record import FeatureSpace, ImageRecords
 from .value_cache import ValueCache
 
 

@@ -17,12 +17,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .checkpoint import write_atomic
+from ..checkpoint import write_atomic
+from ..images import to_uint8
 from .evaluate import feature_values
 from .features import Feature, LocalFeature
-from .images import to_uint8
-from .record import ImageRecords
 from .primitives import BLOB, CORNER, EDGEL
+from .record import ImageRecords
 from .sampling import placements
 
 EDGEL_COLOUR = (220, 40, 40)

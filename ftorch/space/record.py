@@ -18,8 +18,8 @@ import torch
 from torch import Tensor, nn
 from tqdm import tqdm
 
-from .errors import InputError
-from .images import as_image_batch, load_image
+from ..errors import InputError
+from ..images import as_image_batch, load_image
 from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
 from .salient import Points, SalientPoints
 from .scale_space import ScaleSpace, ScaleSpaceOutput
@@ -40,7 +40,7 @@ class Pyramid:
     ``first`` (N, H, W, S+3, 2) and ``second`` (N, H, W, S+3, 3) hold at [n, y, x, j] the first-
     and second-order basis responses of level j-1 (zero outside the pyramid), so the levels around
     any pixel and level are one contiguous run of each that sampling reads as a row
-    (``ftorch.sampling``): an edgel reads 4 numbers of ``first``, a texel 8 and 12. Record batches
+    (``ftorch.space.sampling``): an edgel reads 4 numbers of ``first``, a texel 8 and 12. Record batches
     selected from one another share their :class:`Pyramid` (no copies).
     """
 

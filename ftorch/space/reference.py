@@ -16,9 +16,9 @@ import numpy as np
 from scipy.ndimage import gaussian_filter, map_coordinates
 
 from .features import Conjunction, Feature, LocalFeature
-from .record import ImageRecords
 from .kernels import kernel_radius
 from .primitives import EDGEL
+from .record import ImageRecords
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:

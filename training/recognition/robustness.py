@@ -1,8 +1,8 @@
 """The robustness benchmark (7.2): a run's learners and the peers on perturbed test views.
 
-For each fold of a ``recognize`` run, the fold's test views are perturbed (:mod:`training.perturb`,
+For each fold of a ``recognize`` run, the fold's test views are perturbed (:mod:`training.data.perturb`,
 seeded from the benchmark seed and the fold) and recognized by the fold's ``learner.json``; with
-peers, pixel 1-NN and SIFT matching (:mod:`training.peers`) are fitted on the same fold's
+peers, pixel 1-NN and SIFT matching (:mod:`training.recognition.peers`) are fitted on the same fold's
 training views and answer on the same images. ``pair`` images hold two classes: the learner and
 SIFT (its two best classes) are scored by def. 4.5/4.6; pixel 1-NN cannot compare an image of
 another size and is left out there.
@@ -14,14 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ftorch.draw import grid, panel, save_rgb, titled
-from ftorch.environment import ImageSet
-from ftorch.learner import DistinctiveFeatureLearner
-from ftorch.record import FeatureSpace
+from ftorch.space.draw import grid, panel, save_rgb, titled
+from ftorch.recognition.environment import ImageSet
+from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.space.record import FeatureSpace
 
-from .datasets import Task
+from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score
-from .perturb import KINDS, perturb, save_examples
+from ..data.perturb import KINDS, perturb, save_examples
 from .protocol import test_block
 
 SETS = ("clean", *KINDS)

@@ -13,9 +13,9 @@ import torch
 
 from .bayes import ClassNetwork
 from .environment import ImageSet
+from .inference import Recognition
 from .instances import InstanceList
 from .ksd import distinctive_at, ksd
-from .recognition import Recognition
 
 
 class Counting:

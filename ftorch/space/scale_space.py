@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from .errors import InputError
-from .images import as_image_batch
+from ..errors import InputError
+from ..images import as_image_batch
 from .kernels import band_matrix, derivative_kernels, kernel_radius
 from .steering import cartesian_from_basis
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from .bayes import ClassNetwork
 from .counting import Counting
-from .recognition import Recognition
+from .inference import Recognition
 
 
 def choose_pair(networks: dict[Hashable, ClassNetwork], counting: Counting, rec: Recognition, true: frozenset,

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from ftorch.draw import save_rgb  # noqa: E402
+from ftorch.space.draw import save_rgb  # noqa: E402
 
 OUTCOMES = ("accuracy", "correct", "ambiguous", "ignorant", "wrong")
 

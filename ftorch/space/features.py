@@ -6,7 +6,7 @@
 - :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
 
 Each type carries its own behaviour: its JSON form (``TYPE``, ``to_dict``, ``_from_dict``), its
-parts (a :class:`LocalFeature`, measured at reference points by ``ftorch.evaluate``) or the
+parts (a :class:`LocalFeature`, measured at reference points by ``ftorch.space.evaluate``) or the
 sub-features whose values it combines (``subfeatures``, ``combine``), the components its class
 network links to it and the direction of those arcs (``components``, ``ARCS_TO_COMPONENTS``;
 4.4.1), and its name in legends (``describe``). So a new type is one subclass: defining it
@@ -27,8 +27,8 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from .checkpoint import decode_text, encode_text
-from .errors import InputError
+from ..checkpoint import decode_text, encode_text
+from ..errors import InputError
 from .primitives import PartKind
 
 

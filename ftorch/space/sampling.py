@@ -1,6 +1,6 @@
 """Alg. 3.6's placement of a local feature's parts, and sampling their responses from the dense
 pyramid at any (x, y, sigma) (steps 3 and 4): the one implementation that evaluation, generation
-and drawing use (``ftorch.reference`` keeps an independent one, as the test oracle).
+and drawing use (``ftorch.space.reference`` keeps an independent one, as the test oracle).
 
 Between pixels: bilinear. Between levels: linear in the level index u = 2*log2(sigma) (i.e. in
 log sigma), applied to the scale-normalised responses. A texel at u reads levels u-1, u, u+1;

@@ -16,10 +16,10 @@ from collections.abc import Hashable
 
 import torch
 
+from ..space.features import Conjunction, Disjunction, LocalFeature
+from ..space.generate import expand_geometric, random_edgel_pair, random_texel
 from .bayes import ClassNetwork
 from .environment import ImageSet
-from .features import Conjunction, Disjunction, LocalFeature
-from .generate import expand_geometric, random_edgel_pair, random_texel
 
 METHODS = (1, 2, 3, 4, 5)
 

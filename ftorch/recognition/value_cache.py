@@ -5,9 +5,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .checkpoint import decode_array, encode_array, stored_position
-from .errors import InputError
-from .features import Feature, FeatureTable, unpack_features
+from ..checkpoint import decode_array, encode_array, stored_position
+from ..errors import InputError
+from ..space.features import Feature, FeatureTable, unpack_features
 from .instances import GrowingTable
 
 

@@ -8,9 +8,9 @@ new feature must also reach distinctive power >= t_KSD, and a correct recognitio
 some class uncertain triggers expert learning for the least-well-discriminated class pair
 (alg. 5.2) when that pair's best consulted feature falls short of t_KSD.
 
-The learner orchestrates; its parts own their state: :class:`~ftorch.counting.Counting` the
-instance list and the counts made from it (discretization, CPTs), :class:`~ftorch.candidates.
-CandidateGenerator` alg. 4.10's candidates, :func:`~ftorch.expertise.choose_pair` alg. 5.2's pair.
+The learner orchestrates; its parts own their state: :class:`~ftorch.recognition.counting.Counting` the
+instance list and the counts made from it (discretization, CPTs), :class:`~ftorch.recognition.candidates.
+CandidateGenerator` alg. 4.10's candidates, :func:`~ftorch.recognition.expertise.choose_pair` alg. 5.2's pair.
 
 Decisions the text leaves open (the parts' modules give theirs):
 - Success (alg. 4.8 step 8) is judged on the misrecognized image: its characterized class is
@@ -54,16 +54,16 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from ..checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
+from ..errors import InputError
+from ..space.features import Feature, FeatureTable, unpack_features
 from .bayes import ClassNetwork, compound_arcs
 from .candidates import METHODS, CandidateGenerator, in_use, pick
-from .checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from .counting import Counting
 from .environment import ImageSet
-from .errors import InputError
 from .expertise import choose_pair
-from .features import Feature, FeatureTable, unpack_features
+from .inference import Recognition, outcome, recognize, residual_entropy
 from .instances import InstanceList
-from .recognition import Recognition, outcome, recognize, residual_entropy
 
 
 KIND = "learner"
@@ -245,7 +245,7 @@ class DistinctiveFeatureLearner:
         return Presentation(rec, "expert" if learned else "expert-failed", entropy, (c, d), weakest)
 
     def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
-        """Alg. 5.2 (:func:`ftorch.expertise.choose_pair` with this learner's ``redundancy``): (c, d,
+        """Alg. 5.2 (:func:`ftorch.recognition.expertise.choose_pair` with this learner's ``redundancy``): (c, d,
         KSD_{c,d}) for the least-well-discriminated pair, or None; with k > 1 the k strongest carriers
         of every pair scored count as used."""
         best, used = choose_pair(self.networks, self.counting, rec, true, entropy, self.redundancy)

@@ -15,7 +15,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from .errors import InputError
+from ..errors import InputError
 from .features import Feature, LocalFeature
 from .primitives import PartKind
 from .record import ImageRecords

@@ -28,7 +28,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .features import Feature
+from ..space.features import Feature
 
 CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"

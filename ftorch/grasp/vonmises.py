@@ -22,7 +22,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from .errors import InputError
+from ..errors import InputError
 
 TWO_PI = 2 * math.pi
 MAX_KAPPA = 1000.0  # about 1.8 degrees: the angular resolution of a feature's orientation

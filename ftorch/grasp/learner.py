@@ -54,13 +54,13 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
-from .errors import InputError
-from .evaluate import feature_values
-from .features import Feature
-from .generate import expand_geometric, random_edgel_pair
-from .instances import GrowingTable
-from .ksd import ksd
-from .record import ImageRecords
+from ..errors import InputError
+from ..recognition.instances import GrowingTable
+from ..recognition.ksd import ksd
+from ..space.evaluate import feature_values
+from ..space.features import Feature
+from ..space.generate import expand_geometric, random_edgel_pair
+from ..space.record import ImageRecords
 from .vonmises import VonMisesMixture, fit_mixtures
 
 MU0_CAP = 2.0
@@ -350,7 +350,7 @@ class GraspFeatureSet:
         rows = {i: np.flatnonzero(chosen[:, i]) for i in usable}
         previous = {i: self.models[modelled[i]] for i in usable}
         # A model fitted to the same instances keeps its mixture: EM on the same points reaches the
-        # same fit (each fit is independent of its batch, ftorch/vonmises.py), so only changed ones are fitted.
+        # same fit (each fit is independent of its batch, ftorch/grasp/vonmises.py), so only changed ones are fitted.
         kept = {i: m.mixture for i, m in previous.items() if m is not None and np.array_equal(m.rows, rows[i])}
         refit = [i for i in usable if i not in kept]
         fitted = {**kept, **dict(zip(refit, fit_mixtures([offsets[rows[i], modelled[i]] for i in refit], max_k)

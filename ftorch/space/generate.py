@@ -1,6 +1,6 @@
 """Generating candidate features from a sample image (alg. 4.10, methods 2 and 3).
 
-Every generated part is measured exactly as :func:`ftorch.evaluate.feature_values` measures
+Every generated part is measured exactly as :func:`ftorch.space.evaluate.feature_values` measures
 it, so a feature sampled from an image has value 1 at its own reference point there.
 Randomness comes only from the ``generator`` passed in (a ``torch.Generator``), so a seed
 fixes every choice. Each function returns ``None`` where the image offers no suitable point.
@@ -12,7 +12,7 @@ import math
 import torch
 from torch import Tensor
 
-from .errors import InputError
+from ..errors import InputError
 from .evaluate import feature_values
 from .features import Geometric, LocalFeature, Part, Texel
 from .primitives import PartKind

@@ -1,0 +1,6 @@
+"""Learning to pre-shape a grasp (chapter 6): von Mises orientation models (eq. 6.1-6.5) and the
+grasp learner that recommends finger count and hand orientation (alg. 6.1, 6.2)."""
+from .learner import Experience, GraspLearner, Recommendation
+from .vonmises import VonMisesMixture, fit_mixture, fit_mixtures
+
+__all__ = ["Experience", "GraspLearner", "Recommendation", "VonMisesMixture", "fit_mixture", "fit_mixtures"]

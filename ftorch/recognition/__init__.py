@@ -1,0 +1,10 @@
+"""Recognition and expert learning (chapters 4-5): class networks of distinctive features (4.4),
+recognition by querying them (alg. 4.4), and the incremental learner (alg. 4.7-4.10, 5.1-5.2)
+with its parts: the instance list and counts, candidate generation, expert pair choice."""
+from .bayes import ClassNetwork
+from .environment import ImageSet
+from .inference import Recognition, accuracy, outcome, recognize
+from .learner import DistinctiveFeatureLearner, Presentation
+
+__all__ = ["ClassNetwork", "DistinctiveFeatureLearner", "ImageSet", "Presentation", "Recognition", "accuracy",
+           "outcome", "recognize"]

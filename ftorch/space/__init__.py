@@ -1,0 +1,14 @@
+"""The feature space (chapter 3): the steerable scale space, salient edgels and texels, the image
+records cached once per image, the feature types and their batched values (eq. 3.12-3.14)."""
+from .evaluate import FeatureValues, feature_values
+from .features import Conjunction, Disjunction, Feature, Geometric, LocalFeature, Texel
+from .primitives import BLOB, CORNER, EDGEL, PartKind
+from .record import FeatureSpace, ImageRecords
+from .salient import SalientPoints
+from .scale_space import ScaleSpace, ScaleSpaceOutput
+
+__all__ = [
+    "BLOB", "CORNER", "Conjunction", "Disjunction", "EDGEL", "Feature", "FeatureSpace", "FeatureValues",
+    "Geometric", "ImageRecords", "LocalFeature", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput",
+    "Texel", "feature_values",
+]
