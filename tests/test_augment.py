@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from training import perturb
+from training.data import perturb
 from training.data.augment import augment, overview, texture
 
 from .test_robustness import views

@@ -20,7 +20,9 @@ from ftorch.recognition.bayes import ClassNetwork
 from ftorch.checkpoint import decode_array, encode_array, write_atomic
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
-from training import coil, outputs, run
+from training import run
+from training.cli import outputs
+from training.data import coil
 from training.data.datasets import coil_task
 
 from .test_learner import shape, train
