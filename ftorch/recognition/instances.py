@@ -13,6 +13,12 @@ from collections.abc import Hashable, Iterable
 import numpy as np
 
 
+def are_stored_values(values: np.ndarray) -> bool:
+    """Whether every entry of a stored value table is NaN (not measured) or a feature value: a
+    similarity in [0, 1] (eq. 3.13), allowing for cosines that round just above 1."""
+    return bool(np.all(np.isnan(values) | ((values >= 0) & (values <= 1 + 1e-6))))
+
+
 class GrowingTable:
     """A 2-D float64 table whose rows and columns are appended; the store doubles when full, so n
     appends copy O(n) values in all. :attr:`array` is the used corner (a view: writes go through)."""

@@ -63,7 +63,7 @@ from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
 from .inference import Recognition, outcome, recognize, residual_entropy
-from .instances import InstanceList
+from .instances import InstanceList, are_stored_values
 
 
 KIND = "learner"
@@ -427,7 +427,7 @@ class DistinctiveFeatureLearner:
         values = decode_array(block["values"])
         if values.shape != (len(self.instances), len(columns)):
             raise ValueError(f"instance values of shape {values.shape} for {len(self.instances)} images and {len(columns)} features")
-        if not np.all(np.isnan(values) | ((values >= 0) & (values <= 1 + 1e-6))):  # cosines may round just above 1
+        if not are_stored_values(values):
             raise ValueError("instance values outside [0, 1] (feature values are similarities, eq. 3.13)")
         if columns:
             self.instances.set_block(self.instances.images, columns, values.T)

@@ -8,7 +8,7 @@ import numpy as np
 from ..checkpoint import decode_array, encode_array, stored_position
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
-from .instances import GrowingTable
+from .instances import GrowingTable, are_stored_values
 
 
 class ValueCache:
@@ -62,7 +62,7 @@ class ValueCache:
         own = table is None
         table = FeatureTable() if own else table
         features = list(self._row)  # in row order: rows are only ever added
-        state = {"features": [table.index(f) for f in features], "values": encode_array(self._table.array[: len(features)])}
+        state = {"features": [table.index(f) for f in features], "values": encode_array(self._table.array)}
         if own:
             state["table"] = table.pack()
         return state
@@ -78,7 +78,7 @@ class ValueCache:
             raise InputError(f"value cache is damaged: {err}") from None
         if values.shape != (len(features), self.images):
             raise InputError(f"value cache holds {values.shape}, expected ({len(features)}, {self.images}) for this image set")
-        if not np.all(np.isnan(values) | ((values >= 0) & (values <= 1 + 1e-6))):  # NaN: not yet measured
+        if not are_stored_values(values):
             raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
         self._row = {f: i for i, f in enumerate(features)}
         self._table = GrowingTable(self.images)
