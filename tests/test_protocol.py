@@ -83,6 +83,29 @@ def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path):
     assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
 
 
+def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_path, monkeypatch):
+    """checkpoint_every 0 writes after every cycle and stage; a long interval writes only at the end;
+    both learn the same. The clock is faked: each reading advances it by one second."""
+    writes = []
+    save = Fold._save
+    monkeypatch.setattr(Fold, "_save", lambda self, learner, order, state: (writes.append(state.total_cycles),
+                                                                             save(self, learner, order, state)))
+    every, learner = make_fold(small_task, tmp_path / "every").run(max_cycles=2, stages=1)
+    steps = len(writes)
+    assert steps == every["stages"][-1]["cycles"] + every["stages"][0]["cycles"] + 2  # each cycle and stage end
+    clock = iter(range(10**6))
+    monkeypatch.setattr("training.recognition.protocol.time.perf_counter", lambda: float(next(clock)))
+    seen, writes[:] = [], []
+    once, again = make_fold(small_task, tmp_path / "once").run(max_cycles=2, stages=1, checkpoint_every=10**6,
+                                                               after_cycle=seen.append)
+    assert len(writes) == 1 and seen == []  # only the final state
+    assert without_timing(once) == without_timing(every)
+    assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
+    writes[:] = []
+    make_fold(small_task, tmp_path / "some").run(max_cycles=2, stages=1, checkpoint_every=5)
+    assert 1 < len(writes) < steps
+
+
 def test_damaged_foreign_and_mismatched_checkpoints_are_refused(small_task, tmp_path):
     fold = make_fold(small_task, tmp_path)
     fold.run(max_cycles=1)
