@@ -89,7 +89,7 @@ def _support(learner, c, d) -> list[float]:
     present = torch.from_numpy(learner.instances.has(c))
     values = torch.from_numpy(np.stack([learner.instances.values(f) for f in net.features]))
     cuts = torch.tensor([net.threshold[f] for f in net.features], dtype=torch.float64)
-    return distinctive_at(values, cuts, present, torch.from_numpy(learner.instances.has(d)) & ~present).tolist()
+    return distinctive_at(values, cuts, present, (torch.from_numpy(learner.instances.has(d)) & ~present)[None])[0].tolist()
 
 
 @pytest.mark.parametrize("k", [2, 3])

@@ -69,12 +69,15 @@ def test_distinctive_at_a_cutpoint_brute_force(seed):
     characterized = np.arange(30) < 15
     discriminated = ~characterized & (np.arange(30) % 3 > 0)
     own = ksd(torch.tensor(values), torch.tensor(characterized), torch.tensor(discriminated))
-    at_own = distinctive_at(torch.tensor(values), own.cutpoint, torch.tensor(characterized), torch.tensor(discriminated))
+    at_own = distinctive_at(torch.tensor(values), own.cutpoint, torch.tensor(characterized), torch.tensor(discriminated)[None])[0]
     assert torch.allclose(at_own, own.distinctive, atol=1e-12)
     cuts = rng.normal(0, 1, 6)
-    got = distinctive_at(torch.tensor(values), torch.tensor(cuts), torch.tensor(characterized), torch.tensor(discriminated))
-    for f in range(6):
-        a = values[f][discriminated & np.isfinite(values[f])]
-        b = values[f][characterized & np.isfinite(values[f])]
-        expected = max((a <= cuts[f]).mean() - (b <= cuts[f]).mean(), 0.0)
-        assert got[f].item() == pytest.approx(expected, abs=1e-12)
+    groups = np.stack([discriminated, ~characterized, ~characterized & (np.arange(30) > 40)])  # the last is empty
+    got = distinctive_at(torch.tensor(values), torch.tensor(cuts), torch.tensor(characterized), torch.tensor(groups))
+    assert got.shape == (3, 6)
+    for d, group in enumerate(groups):
+        for f in range(6):
+            a = values[f][group & np.isfinite(values[f])]
+            b = values[f][characterized & np.isfinite(values[f])]
+            expected = max((a <= cuts[f]).mean() - (b <= cuts[f]).mean(), 0.0) if len(a) and len(b) else 0.0
+            assert got[d, f].item() == expected  # counts are exact: the same float as by hand

@@ -318,17 +318,19 @@ class ClassNetwork:
             out[self.features.index(key)] = int(value)
         return out
 
-    def _factors(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(P(C) prod_singles P(e_i | C)) (2,) and each group's likelihood P(e_group | C) (G, 2)."""
+    def _factors(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
+        """(P(C) prod_singles P(e_i | C)) (2,), each group's likelihood P(e_group | C) (G, 2) and
+        each compiled group's evidence mask (None for a group contracted by einsum)."""
         c = self.compiled()
         weight = self.prior
         observed = state[c.singles] >= 0
         if observed.any():
             weight = weight * c.single_cpt[observed, :, state[c.singles[observed]]].prod(0)
         likes = np.ones((len(c.groups), 2))
-        for g, group in enumerate(c.groups):
-            likes[g] = group.table @ group.mask(state) if group.table is not None else self._contract(group, state)
-        return weight, likes
+        masks = [group.mask(state) if group.table is not None else None for group in c.groups]
+        for g, (group, mask) in enumerate(zip(c.groups, masks)):
+            likes[g] = group.table @ mask if mask is not None else self._contract(group, state)
+        return weight, likes, masks
 
     def _contract(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
         """P(e_group | C) (2,), or P(e_group, query | C) (2, 2), of a large group by einsum."""
@@ -370,7 +372,7 @@ class ClassNetwork:
     def infer(self, state: np.ndarray) -> tuple[float, np.ndarray]:
         """:meth:`evaluate` computed afresh: the exact factorised inference of the module docstring."""
         c = self.compiled()
-        weight, likes = self._factors(state)
+        weight, likes, masks = self._factors(state)
         joint = weight * likes.prod(0)
         total = joint.sum()
         out = np.zeros(len(self.features))
@@ -384,14 +386,18 @@ class ClassNetwork:
         if n_groups:
             before = np.vstack([np.ones((1, 2)), np.cumprod(likes, 0)])[:n_groups]  # product of the groups before g
             after = np.vstack([np.cumprod(likes[::-1], 0)[::-1], np.ones((1, 2))])[1:]  # ... and after g
-        for g, group in enumerate(c.groups):
+        for g, (group, mask) in enumerate(zip(c.groups, masks)):
             open_nodes = np.flatnonzero(state[group.positions] < 0)
             if not len(open_nodes):
                 continue
             rest = weight * before[g] * after[g] / total
-            if group.table is not None:
-                present = (group.table * group.mask(state)) @ group.bits[:, open_nodes]  # P(F_j = 1, e_g | C) (2, k)
-                both = np.stack([likes[g][:, None] - present, present], axis=-1).transpose(1, 0, 2)
+            if mask is not None:
+                present = (group.table * mask) @ group.bits[:, open_nodes]  # P(F_j = 1, e_g | C) (2, k)
+                # laid out (C, F_j, F) and viewed as (F_j, C, F): information sums each table in the
+                # order its layout gives, so this layout is part of the result's last bit
+                both = np.empty((2, len(open_nodes), 2))
+                both[:, :, 0], both[:, :, 1] = likes[g][:, None] - present, present
+                both = both.transpose(1, 0, 2)
             else:
                 both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
             out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
@@ -405,7 +411,7 @@ class ClassNetwork:
         if query is not None and query in evidence:
             raise ValueError(f"query {query!r} is already observed")
         state = self.state(evidence)
-        weight, likes = self._factors(state)
+        weight, likes, _ = self._factors(state)
         if query is None:
             return _normalised((weight * likes.prod(0))[None])[0]
         c = self.compiled()

@@ -76,16 +76,21 @@ class Counting:
                         net.set_threshold(f, cut)
             self.estimate(net, pseudocount)
 
-    def pair_powers(self, networks: dict[Hashable, ClassNetwork], rows: list[tuple]) -> torch.Tensor:
-        """KSD_{c,d}(f) for rows (c, d, f) in one batch (alg. 5.2, ``ksd.distinctive_at``): node f at its
-        cut-point in c's network, between instances of c and instances of d that are not of c."""
-        member = {label: self.instances.has(label) for label in dict.fromkeys(x for c, d, _ in rows for x in (c, d))}
-        values = self.instances.block([f for _, _, f in rows])
-        cuts = np.array([networks[c].threshold[f] for c, _, f in rows])
-        present = np.stack([member[c] for c, _, _ in rows])
-        against = np.stack([member[d] for _, d, _ in rows]) & ~present
-        return distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
-                              torch.from_numpy(against))
+    def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple]) -> list[torch.Tensor]:
+        """KSD_{c,d}(f) (len(others), len(features)) for each (c, others, features) of ``pairs`` (alg.
+        5.2, ``ksd.distinctive_at``): node f at its cut-point in c's network, between instances of c
+        and instances of d that are not of c, for every d in ``others``."""
+        member = {label: self.instances.has(label) for label in
+                  dict.fromkeys(x for c, others, _ in pairs for x in (c, *others))}
+        out = []
+        for c, others, features in pairs:
+            present = member[c]
+            values = self.instances.block(features)
+            cuts = np.array([networks[c].threshold[f] for f in features])
+            against = np.stack([member[d] for d in others]) & ~present
+            out.append(distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
+                                      torch.from_numpy(against)))
+        return out
 
     def forget(self, features: Iterable[Hashable], networks: dict[Hashable, ClassNetwork]) -> None:
         """Discarded features (alg. 5.3 step 4): their nodes, discriminated classes and instance columns go."""

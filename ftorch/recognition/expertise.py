@@ -35,13 +35,11 @@ def choose_pair(networks: dict[Hashable, ClassNetwork], counting: Counting, rec:
         others = [d for d in labels if (d in true) != (c in true)]
         if others:
             pairs.append((c, others, [f for f in networks[c].features if k > 1 or f in rec.values]))
-    rows = [(c, d, f) for c, others, carriers in pairs for d in others for f in carriers]
-    powers = counting.pair_powers(networks, rows) if rows else None  # rows c, d, f in one batch
-    best, used, start = None, [], 0
+    powers = iter(counting.pair_powers(networks, [pair for pair in pairs if pair[2]]))  # (others, carriers) each
+    best, used = None, []
     for c, others, carriers in pairs:
         if carriers:
-            block = powers[start : start + len(others) * len(carriers)].view(len(others), len(carriers))
-            start += block.numel()
+            block = next(powers)
             strongest = [p.topk(min(k, len(p))) for p in block]
             scores = [float(top.values[-1]) if len(top.values) == k else 0.0 for top in strongest]
             if k > 1:

@@ -61,33 +61,56 @@ class Recognition:
     beliefs: list = field(default_factory=list)
 
 
+class _Plan:
+    """The networks' structure as recognition indexes it: every feature once (``keys``), the
+    networks holding each, and each network's slots in the side-by-side information array. It
+    depends only on the networks and their feature tuples (not on CPTs or thresholds), so the last
+    one is kept and reused while those are the same objects (``signature``)."""
+
+    last: "_Plan | None" = None
+
+    def __init__(self, networks: dict[Hashable, ClassNetwork]):
+        self.signature = tuple((label, net, net.features) for label, net in networks.items())
+        self.labels, self.nets = list(networks), list(networks.values())
+        self.keys = list(dict.fromkeys(k for net in self.nets for k in net.features))
+        index = {k: i for i, k in enumerate(self.keys)}
+        where = [np.array([index[k] for k in net.features], dtype=np.int64) for net in self.nets]
+        self.local = [dict(zip(net.features, range(len(net.features)))) for net in self.nets]
+        self.holders = [[] for _ in self.keys]  # the networks holding each feature, in network order
+        for n, net in enumerate(self.nets):
+            for key in net.features:
+                self.holders[index[key]].append(n)
+        # every network's informations side by side, network after network: the first maximum is
+        # the first network's, then its first feature's (the tie rule in the module docstring)
+        self.start = np.cumsum([0] + [len(w) for w in where])
+        self.slot_key = np.concatenate(where) if self.keys else np.zeros(0, dtype=np.int64)
+        self.slots = [[] for _ in self.keys]  # the slots of each feature
+        for slot, i in enumerate(self.slot_key.tolist()):
+            self.slots[i].append(slot)
+
+    @classmethod
+    def of(cls, networks: dict[Hashable, ClassNetwork]) -> "_Plan":
+        last = cls.last
+        if last is None or last.signature != tuple((label, net, net.features) for label, net in networks.items()):
+            last = cls.last = cls(networks)
+        return last
+
+
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
               tolerance: float = 1e-12, positive_only: bool = False) -> Recognition:
     """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14).
 
-    Features are indexed once; each network keeps its evidence as a state array and only the
-    networks that hold the queried feature recompute their informations.
+    Features are indexed once per network structure (:class:`_Plan`); each network keeps its
+    evidence as a state array and only the networks that hold the queried feature recompute
+    their informations.
     """
-    labels, nets = list(networks), list(networks.values())
-    keys = list(dict.fromkeys(k for net in nets for k in net.features))
-    index = {k: i for i, k in enumerate(keys)}
-    where = [np.array([index[k] for k in net.features], dtype=np.int64) for net in nets]
-    local = [dict(zip(net.features, range(len(net.features)))) for net in nets]
-    holders = [[] for _ in keys]  # the networks holding each feature, in network order
-    for n, net in enumerate(nets):
-        for key in net.features:
-            holders[index[key]].append(n)
+    plan = _Plan.of(networks)
+    labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
+    start, slot_key, slots = plan.start, plan.slot_key, plan.slots
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
     evaluated = [net.evaluate(state) for net, state in zip(nets, states)]
     belief = [e[0] for e in evaluated]
-    # every network's informations side by side, network after network: the first maximum is the
-    # first network's, then its first feature's (the tie rule above)
-    start = np.cumsum([0] + [len(w) for w in where])
-    slot_key = np.concatenate(where) if keys else np.zeros(0, dtype=np.int64)
     informative = np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0)
-    slots = [[] for _ in keys]  # the slots of each feature
-    for slot, i in enumerate(slot_key.tolist()):
-        slots[i].append(slot)
     asked = np.zeros(len(slot_key), dtype=bool)
     beliefs = [dict(zip(labels, belief))]
     queried, values = [], {}

@@ -61,16 +61,20 @@ def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor, position: 
 
 
 def distinctive_at(values: Tensor, cutpoint: Tensor, characterized: Tensor, discriminated: Tensor) -> Tensor:
-    """Distinctive power (F,) of each row of ``values`` (F, n) at a given cut-point alpha (F,), the
+    """Distinctive power (D, F) of each row of ``values`` (F, n) at a given cut-point alpha (F,)
+    between the ``characterized`` instances (n,) and each of D ``discriminated`` groups (D, n): the
     KSD_{c,d}(f) of alg. 5.2 for a node already discretized: cdf(alpha | discriminated) -
     cdf(alpha | characterized) where positive, else 0, with cdf counting values <= alpha (a node
-    is present above its cut-point); 0 where a group has no finite value."""
+    is present above its cut-point); 0 where a group has no finite value. The counts for all
+    groups at once are products of 0/1 matrices: exact integers, as counting one by one gives."""
     values = torch.as_tensor(values, dtype=torch.float64)
     finite = torch.isfinite(values)
-    a = torch.as_tensor(discriminated, dtype=torch.bool).expand_as(values) & finite
-    b = torch.as_tensor(characterized, dtype=torch.bool).expand_as(values) & finite
-    below = values <= torch.as_tensor(cutpoint, dtype=torch.float64)[:, None]
-    cdf_a = (a & below).sum(1, dtype=torch.float64) / a.sum(1).clamp_min(1)
-    cdf_b = (b & below).sum(1, dtype=torch.float64) / b.sum(1).clamp_min(1)
-    power = (cdf_a - cdf_b).clamp_min(0.0)
-    return torch.where(a.any(1) & b.any(1), power, torch.zeros_like(power))
+    below = (values <= torch.as_tensor(cutpoint, dtype=torch.float64)[:, None]) & finite
+    groups = torch.as_tensor(discriminated, dtype=torch.bool).to(torch.float64).T  # (n, D)
+    b = torch.as_tensor(characterized, dtype=torch.bool)
+    count_a, below_a = finite.to(torch.float64) @ groups, below.to(torch.float64) @ groups  # (F, D)
+    count_b, below_b = (finite & b).sum(1), (below & b).sum(1, dtype=torch.float64)
+    cdf_a = below_a / count_a.clamp_min(1)
+    cdf_b = below_b / count_b.clamp_min(1)
+    power = (cdf_a - cdf_b[:, None]).clamp_min(0.0)
+    return torch.where((count_a > 0) & (count_b > 0)[:, None], power, torch.zeros_like(power)).T
