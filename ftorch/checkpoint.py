@@ -58,10 +58,13 @@ def _inflate(text, size: int) -> bytes:
 
 def encode_array(array: np.ndarray) -> dict:
     """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes."""
-    data = np.require(array, dtype="<f8", requirements="C")  # keeps 0-d arrays 0-d
-    narrow = data.astype("<f4")
-    if np.array_equal(narrow.astype("<f8"), data, equal_nan=True):
-        data = narrow
+    if np.asarray(array).dtype == np.float32:
+        data = np.require(array, dtype="<f4", requirements="C")
+    else:
+        data = np.require(array, dtype="<f8", requirements="C")  # keeps 0-d arrays 0-d
+        narrow = data.astype("<f4")
+        if np.array_equal(narrow.astype("<f8").view("<i8"), data.view("<i8")):  # bit for bit, NaN included
+            data = narrow
     rows = data.reshape(len(data), int(np.prod(data.shape[1:]))) if data.ndim else data.reshape(1, 1)
     return {"shape": list(data.shape), "dtype": data.dtype.str,
             "blocks": [_compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]}

@@ -210,6 +210,28 @@ def test_value_cache_follows_its_rule_equals_fresh_values_and_round_trips(shapes
     with pytest.raises(InputError, match="expected"):
         ValueCache(len(env) + 1).load_state_dict(cache.state_dict())
 
+def test_a_float32_space_caches_float32_values_exactly(shapes):
+    """The cache stores values in the precision they are computed in: half the memory, every
+    value the same float64 as a fresh evaluation; a state it cannot hold exactly is refused."""
+    env = ImageSet(shapes.images[:8], shapes.labels[:8], records=shapes.records(range(8)))
+    generator = torch.Generator().manual_seed(1)
+    features = [f for n in range(8) for f in (random_texel(env.all_records, n, generator),
+                                              random_edgel_pair(env.all_records, n, generator)) if f is not None]
+    assert env.all_records.dtype == torch.float32 and env.cache.dtype == np.float32
+    got = env.values(features, range(len(env)))
+    fresh = feature_values(features, env.all_records).values.double().numpy()
+    assert got.dtype == np.float64 and np.array_equal(got, fresh)
+    assert env.cache._table.array.dtype == np.float32
+    state = json.loads(json.dumps(env.cache_state()))
+    other = ValueCache(len(env), np.float32)
+    other.load_state_dict(state)
+    assert np.array_equal(other.values(features, range(len(env)), None), got)
+    wide = ValueCache(len(env))
+    wide.values(features, range(len(env)), lambda f, i: np.full((len(f), len(i)), 0.1))  # 0.1 needs float64
+    with pytest.raises(InputError, match="cannot hold exactly"):
+        ValueCache(len(env), np.float32).load_state_dict(wide.state_dict())
+
+
 def test_discard_unused_removes_features_and_recounts(shapes):
     learner, _ = train(shapes, seed=0, cycles=2)
     assert learner.discard_unused(since=0) == []  # every feature was used at some presentation

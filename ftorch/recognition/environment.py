@@ -48,7 +48,7 @@ class ImageSet:
                 records = self.space.records(self.images, progress=progress, names=sources)
         self.all_records = records
         self._single: dict[int, ImageRecords] = {}
-        self._cache = ValueCache(len(self.labels))
+        self._cache = ValueCache(len(self.labels), torch.empty(0, dtype=records.dtype).numpy().dtype)
 
     @staticmethod
     def _grey(item, name: str) -> torch.Tensor:
@@ -85,7 +85,7 @@ class ImageSet:
             records = self.record(images[0])
         else:
             records = self.all_records if images == list(range(len(self))) else self.records(images)
-        return feature_values(features, records).values.double().cpu().numpy()
+        return feature_values(features, records).values.cpu().numpy()  # in the records' precision, as the cache stores it
 
     def cache_state(self, table: FeatureTable | None = None) -> dict:
         """The value cache as JSON-ready data (:meth:`ValueCache.state_dict`)."""

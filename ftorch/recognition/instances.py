@@ -20,13 +20,14 @@ def are_stored_values(values: np.ndarray) -> bool:
 
 
 class GrowingTable:
-    """A 2-D float64 table whose rows and columns are appended; the store doubles when full, so n
-    appends copy O(n) values in all. :attr:`array` is the used corner (a view: writes go through)."""
+    """A 2-D float table (``dtype``, float64 by default) whose rows and columns are appended; the
+    store doubles when full, so n appends copy O(n) values in all. :attr:`array` is the used corner
+    (a view: writes go through)."""
 
-    def __init__(self, columns: int = 0, fill: float = np.nan):
+    def __init__(self, columns: int = 0, fill: float = np.nan, dtype=np.float64):
         self.fill = fill
         self.rows, self.columns = 0, columns
-        self._store = np.full((0, columns), fill)
+        self._store = np.full((0, columns), fill, dtype=dtype)
 
     @property
     def array(self) -> np.ndarray:
@@ -36,20 +37,21 @@ class GrowingTable:
         have_rows, have_columns = self._store.shape
         if rows > have_rows or columns > have_columns:
             grown = np.full((have_rows if rows <= have_rows else max(rows, 2 * have_rows),
-                             have_columns if columns <= have_columns else max(columns, 2 * have_columns)), self.fill)
+                             have_columns if columns <= have_columns else max(columns, 2 * have_columns)), self.fill,
+                            dtype=self._store.dtype)
             grown[:have_rows, :have_columns] = self._store
             self._store = grown
 
     def add_rows(self, block: np.ndarray) -> None:
         """Append rows (k, columns)."""
-        block = np.asarray(block, dtype=float)
+        block = np.asarray(block)
         self._reserve(self.rows + len(block), self.columns)
         self._store[self.rows: self.rows + len(block), : self.columns] = block
         self.rows += len(block)
 
     def add_columns(self, block: np.ndarray) -> None:
         """Append columns (rows, k)."""
-        block = np.asarray(block, dtype=float)
+        block = np.asarray(block)
         self._reserve(self.rows, self.columns + block.shape[1])
         self._store[: self.rows, self.columns: self.columns + block.shape[1]] = block
         self.columns += block.shape[1]

@@ -13,7 +13,9 @@ from .instances import GrowingTable, are_stored_values
 
 class ValueCache:
     """Feature values (eq. 3.14) of ``images`` images: one row per feature, in the order first
-    asked for, one float64 column per image, NaN where not yet measured.
+    asked for, one column per image, NaN where not yet measured. They are stored as ``dtype``, the
+    precision they are computed in (float32 for a float32 feature space: exact, and half the
+    memory of float64), and handed out as float64.
 
     Each (feature, image) value is computed once, in one batch with the other values missing at
     that call, and never recomputed. A call for one image (a recognition) computes its missing
@@ -22,10 +24,11 @@ class ValueCache:
     cache is part of a run's state (:meth:`state_dict`).
     """
 
-    def __init__(self, images: int):
+    def __init__(self, images: int, dtype=np.float64):
         self.images = images
+        self.dtype = np.dtype(dtype)
         self._row: dict[Feature, int] = {}
-        self._table = GrowingTable(images)
+        self._table = GrowingTable(images, dtype=self.dtype)
 
     def __len__(self) -> int:
         return len(self._row)
@@ -54,15 +57,22 @@ class ValueCache:
                 current = table[self._row[f], batch]
                 table[self._row[f], batch] = np.where(np.isnan(current), row, current)
             block = table[np.ix_(rows, images)]
-        return block
+        return block.astype(np.float64, copy=False)
+
+    def table(self) -> FeatureTable:
+        """A feature table that starts with this cache's features at their rows (built without
+        hashing them: a checkpoint of many thousand features writes them once, cheaply)."""
+        return FeatureTable(self._row)
 
     def state_dict(self, table: FeatureTable | None = None) -> dict:
         """The cache as JSON-ready data: the features, by position in ``table`` (or in a table of
         its own, written as "table"), and the exact values."""
         own = table is None
-        table = FeatureTable() if own else table
+        table = self.table() if own else table
         features = list(self._row)  # in row order: rows are only ever added
-        state = {"features": [table.index(f) for f in features], "values": encode_array(self._table.array)}
+        # a table from table() holds them at their rows: compared by identity, nothing hashed
+        positions = range(len(features)) if table.features[: len(features)] == features else map(table.index, features)
+        state = {"features": list(positions), "values": encode_array(self._table.array)}
         if own:
             state["table"] = table.pack()
         return state
@@ -80,6 +90,9 @@ class ValueCache:
             raise InputError(f"value cache holds {values.shape}, expected ({len(features)}, {self.images}) for this image set")
         if not are_stored_values(values):
             raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
+        if not np.array_equal(values.astype(self.dtype), values, equal_nan=True):
+            raise InputError(f"value cache holds values that {self.dtype} storage cannot hold exactly: "
+                             "written by a feature space of another precision")
         self._row = {f: i for i, f in enumerate(features)}
-        self._table = GrowingTable(self.images)
+        self._table = GrowingTable(self.images, dtype=self.dtype)
         self._table.add_rows(values)

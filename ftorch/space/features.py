@@ -297,29 +297,37 @@ class FeatureTable:
     blocks are remembered by their features.
     """
 
-    _packed: OrderedDict = OrderedDict()  # tuple of features -> packed block, the most recent 256
+    # the ids of a block's features -> (those features, the packed block), the most recent 256; an
+    # entry keeps its features alive, so their ids cannot be reused while it is remembered
+    _packed: OrderedDict = OrderedDict()
 
-    def __init__(self):
-        self.features: list[Feature] = []
-        self._index: dict[Feature, int] = {}
+    def __init__(self, positions: dict[Feature, int] | None = None):
+        """An empty table, or one holding the features of ``positions`` (feature -> 0, 1, 2, ...,
+        in order, as a value cache keeps its rows), taken over without hashing them again."""
+        self._index: dict[Feature, int] = {} if positions is None else positions.copy()
+        self.features: list[Feature] = list(self._index)
+
+    def __len__(self) -> int:
+        return len(self.features)
 
     def index(self, feature: Feature) -> int:
-        if feature not in self._index:
-            self._index[feature] = len(self.features)
+        at = self._index.get(feature)
+        if at is None:
+            at = self._index[feature] = len(self.features)
             self.features.append(feature)
-        return self._index[feature]
+        return at
 
     def pack(self) -> dict:
         blocks = []
         for start in range(0, len(self.features), CHUNK):
             chunk = tuple(self.features[start : start + CHUNK])
-            block = self._packed.get(chunk)
-            if block is None:
-                block = encode_text("[" + ",".join(f.to_json() for f in chunk) + "]")
-                self._packed[chunk] = block
+            key = tuple(map(id, chunk))
+            known = self._packed.get(key)
+            if known is None:
+                known = self._packed[key] = (chunk, encode_text("[" + ",".join(f.to_json() for f in chunk) + "]"))
                 if len(self._packed) > 256:
                     self._packed.popitem(last=False)
-            blocks.append(block)
+            blocks.append(known[1])
         return {"blocks": blocks}
 
 

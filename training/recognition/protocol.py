@@ -37,7 +37,7 @@ from tqdm import tqdm
 from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint
 from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.space.features import FeatureTable, unpack_features
+from ftorch.space.features import unpack_features
 from ftorch.recognition.learner import OPTIONS, DistinctiveFeatureLearner
 from ftorch.recognition.inference import Recognition, accuracy, outcome
 
@@ -209,7 +209,7 @@ class Fold:
     def _save(self, learner, order, state: FoldState):
         """The checkpoint: features stored once for the value cache and the learner, the cache's
         first (it only grows, so its packed blocks are reused from the last checkpoint)."""
-        table = FeatureTable()
+        table = self.train.cache.table()
         cache = self.train.cache_state(table)
         learned = learner.state_dict(table=table)
         save_checkpoint(self.checkpoint, FOLD_KIND, {
