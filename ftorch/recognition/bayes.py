@@ -295,15 +295,23 @@ class ClassNetwork:
         training makes a class impossible; a parent configuration never seen gives 1/2 either way."""
         present = np.asarray(present, dtype=bool)
         self.prior = np.array([0.5, 0.5]) if len(present) == 0 else np.array([1 - present.mean(), present.mean()])
+        by_parents: dict[int, list] = {}
         for key in self.features:
-            columns = [present.astype(np.int64)] + [np.asarray(states[p]) for p in self.parents[key]] + [np.asarray(states[key])]
-            known = np.all([c >= 0 for c in columns], axis=0)
-            index = np.zeros(int(known.sum()), dtype=np.int64)
-            for c in columns:
-                index = index * 2 + c[known]
-            counts = np.bincount(index, minlength=2 ** len(columns)).reshape((2,) * len(columns)).astype(float)
+            by_parents.setdefault(len(self.parents[key]), []).append(key)
+        for k, keys in by_parents.items():  # nodes with k parents: all counted in one bincount
+            columns = np.stack([np.stack([present.astype(np.int64), *(np.asarray(states[p]) for p in self.parents[key]),
+                                          np.asarray(states[key])]) for key in keys])  # (nodes, class + parents + node, n)
+            known = (columns >= 0).all(1)
+            index = np.zeros(known.shape, dtype=np.int64)
+            for j in range(k + 2):
+                index = index * 2 + columns[:, j]
+            cells = 2 ** (k + 2)
+            index += np.arange(len(keys))[:, None] * cells  # each node its own cells
+            counts = np.bincount(index[known], minlength=cells * len(keys)).reshape(len(keys), *(2,) * (k + 2)).astype(float)
             total = counts.sum(-1, keepdims=True)
-            self._put(key, np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5))
+            tables = np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5)
+            for key, table in zip(keys, tables):
+                self._put(key, table)
 
     # -- exact inference -----------------------------------------------------------------------
     def compiled(self) -> _Compiled:
