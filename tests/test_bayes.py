@@ -134,6 +134,29 @@ def test_counting_with_unknown_values_and_the_zero_count_rule():
     np.testing.assert_allclose(net.cpt["b"], [[[1.0, 0.0], [0.5, 0.5]], [[0.0, 1.0], [0.5, 0.5]]])
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_counts_equal_counting_by_hand(seed):
+    """Every CPT cell of random networks (nodes with 0 to several parents, unknown states) is
+    (count + a) / (total + 2a) of its configuration, counted instance by instance."""
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        net = random_network(rng, int(rng.integers(1, 10)))
+        n = int(rng.integers(0, 30))
+        present = rng.random(n) < 0.5
+        states = {k: rng.integers(-1, 2, n) for k in net.features}
+        a = float(rng.choice([0.0, 1.0, 0.5]))
+        net.estimate(present, states, a)
+        for key in net.features:
+            axes = [present.astype(int), *(states[p] for p in net.parents[key])]
+            for config in np.ndindex(*(2,) * len(axes)):
+                rows = [i for i in range(n) if all(x[i] == v for x, v in zip(axes, config)) and states[key][i] >= 0
+                        and all(states[p][i] >= 0 for p in net.parents[key])]
+                total = len(rows)
+                ones = sum(states[key][i] == 1 for i in rows)
+                expected = [0.5, 0.5] if total == 0 else [(total - ones + a) / (total + 2 * a), (ones + a) / (total + 2 * a)]
+                assert net.cpt[key][config].tolist() == expected
+
+
 def test_arcs_follow_compound_structure():
     texel = Texel([1.0] * 15)
     edgel = Part("edgel", (1.0, 0.0), phi=0.3, d=2.0)
