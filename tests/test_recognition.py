@@ -100,3 +100,31 @@ def test_a_feature_is_asked_once_even_where_its_evidence_is_not_entered():
     assert result.posteriors["X"] == result.posteriors["Y"] == nets["X"].posterior({"s": 1})  # only s entered
     both = recognize(nets, lambda f: 0.9)
     assert sorted(both.queried) == ["s", "x1", "y1"] and both.posteriors["X"] == both.posteriors["Y"] > 0.5
+
+
+def test_recognition_follows_networks_that_change_between_calls():
+    """The index of the networks is reused while they keep their features: a feature added,
+    removed, or a network added or reordered is seen at the next recognition, which then equals
+    one by a freshly indexed recognizer."""
+    from ftorch.recognition import inference
+
+    perfect = [[1.0, 0.0], [0.0, 1.0]]
+    nets = {"X": network("X", perfect, "x1"), "Y": network("Y", [[0.8, 0.2], [0.3, 0.7]], "y1")}
+    values = {"x1": 0.1, "y1": 0.9, "y2": 0.9, "z1": 0.9}
+
+    def both_ways(networks):
+        kept = recognize(networks, values.__getitem__)
+        inference._Plan.last = None
+        fresh = recognize(networks, values.__getitem__)
+        assert (kept.queried, kept.posteriors, kept.beliefs) == (fresh.queried, fresh.posteriors, fresh.beliefs)
+        return kept
+
+    assert both_ways(nets).queried == ["x1", "y1"]
+    nets["Y"].add_feature("y2", threshold=0.5)
+    nets["Y"].set_cpt("y2", np.array(perfect))
+    assert both_ways(nets).queried == ["x1", "y2"]  # the perfect new feature settles Y first
+    nets["Z"] = network("Z", perfect, "z1")
+    assert "z1" in both_ways(nets).queried
+    assert both_ways({k: nets[k] for k in ("Z", "Y", "X")}).queried[0] == "z1"  # ties: the first network
+    nets["Y"].remove_feature("y2")
+    assert "y2" not in both_ways(nets).queried
