@@ -270,6 +270,37 @@ def test_an_interrupted_run_says_where_to_resume(tmp_path):
     assert done.returncode == 0, done.stderr
 
 
+def test_sigterm_stops_the_runner_and_its_workers(tmp_path):
+    """A scheduler's SIGTERM to the runner alone (not its process group) ends the run as Ctrl-C
+    does, and takes the --workers processes with it instead of waiting for their tasks."""
+    out = tmp_path / "run"
+    argv = [sys.executable, "-m", "training.run", "recognize", "--quiet", "--device", "cpu",  # the default job
+            "--workers", "2", "--checkpoint-every", "0", "--out", str(out)]
+    child = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 180
+    while not all((out / f"fold{k}" / "checkpoint.json").is_file() for k in (1, 2)) and time.monotonic() < deadline \
+            and child.poll() is None:
+        time.sleep(0.05)
+    workers = [int(p) for p in subprocess.run(["pgrep", "-P", str(child.pid)], capture_output=True,
+                                              text=True).stdout.split()]
+    assert child.poll() is None and len(workers) >= 2  # two workers (and the resource tracker) at work
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=20)  # the folds' tasks have a minute or more to go
+    assert child.returncode == 130 and err.strip().startswith("interrupted; the checkpoints in"), err
+
+    def alive(pid):
+        try:
+            with open(f"/proc/{pid}/stat") as stat_file:
+                return stat_file.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 15
+    while any(alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(alive(p) for p in workers)
+
+
 # -- 6. finding images ---------------------------------------------------------------------------
 def _coil_views(folder, names):
     folder.mkdir(parents=True, exist_ok=True)

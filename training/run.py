@@ -520,8 +520,13 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
+def _terminated(*_) -> None:
+    raise KeyboardInterrupt  # SIGTERM (a cluster's scheduler, kill) stops a run as Ctrl-C does
+
+
 def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _terminated)
     argv = sys.argv[1:] if argv is None else argv
     args = parser().parse_args(argv or ["recognize"])
     try:

@@ -84,29 +84,45 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
     results: list = [None] * len(arguments)
     failures: dict[str, str] = {}
     attempts = [0] * len(arguments)
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool, \
-            tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
-        pending = {pool.submit(call, a): i for i, a in enumerate(arguments)}
-        while pending:
-            future = next(as_completed(pending))
-            i = pending.pop(future)
-            try:
-                results[i] = future.result()
-                bar.update(1)
-            except InputError:
-                raise
-            except Exception as error:  # noqa: BLE001 - reported, retried once, then named
-                attempts[i] += 1
-                again = attempts[i] <= RETRIES
-                bar.write(f"{names[i]} failed ({_describe(error)}); {'running it again' if again else 'giving up'}")
-                if again:
-                    pending[pool.submit(call, arguments[i])] = i
-                else:
-                    failures[names[i]] = _describe(error)
+    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"))
+    try:
+        with tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
+            pending = {pool.submit(call, a): i for i, a in enumerate(arguments)}
+            while pending:
+                future = next(as_completed(pending))
+                i = pending.pop(future)
+                try:
+                    results[i] = future.result()
                     bar.update(1)
+                except InputError:
+                    raise
+                except Exception as error:  # noqa: BLE001 - reported, retried once, then named
+                    attempts[i] += 1
+                    again = attempts[i] <= RETRIES
+                    bar.write(f"{names[i]} failed ({_describe(error)}); {'running it again' if again else 'giving up'}")
+                    if again:
+                        pending[pool.submit(call, arguments[i])] = i
+                    else:
+                        failures[names[i]] = _describe(error)
+                        bar.update(1)
+    except BaseException:
+        _stop(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True)  # at once after _stop; otherwise every task has finished
     if failures:
         raise TasksFailed(failures)
     return results
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Interrupted (Ctrl-C, SIGTERM) or refused: end the workers now instead of waiting for their
+    tasks, so that none outlives the runner (a task's files are written atomically, so a killed
+    task leaves its last checkpoint whole). The executor has no public way to end busy workers
+    before Python 3.14 (``terminate_workers``), hence its process table."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], workers: int, address: str,
