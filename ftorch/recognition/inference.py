@@ -69,8 +69,8 @@ class _Plan:
 
     last: "_Plan | None" = None
 
-    def __init__(self, networks: dict[Hashable, ClassNetwork]):
-        self.signature = tuple((label, net, net.features) for label, net in networks.items())
+    def __init__(self, networks: dict[Hashable, ClassNetwork], signature: tuple):
+        self.signature = signature
         self.labels, self.nets = list(networks), list(networks.values())
         self.keys = list(dict.fromkeys(k for net in self.nets for k in net.features))
         index = {k: i for i, k in enumerate(self.keys)}
@@ -90,10 +90,10 @@ class _Plan:
 
     @classmethod
     def of(cls, networks: dict[Hashable, ClassNetwork]) -> "_Plan":
-        last = cls.last
-        if last is None or last.signature != tuple((label, net, net.features) for label, net in networks.items()):
-            last = cls.last = cls(networks)
-        return last
+        signature = tuple((label, net, net.features) for label, net in networks.items())
+        if cls.last is None or cls.last.signature != signature:
+            cls.last = cls(networks, signature)
+        return cls.last
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
