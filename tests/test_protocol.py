@@ -21,7 +21,7 @@ from training import run
 from training.plots import figure_rgb, fold_curves_figure
 from training.data.datasets import Task, plym_task
 from training.recognition.protocol import Fold, FoldState, RunConfig, next_target
-from training.recognition.report import growth, seed_study
+from training.recognition.report import growth, growth_over_seeds, seed_study
 
 CONFIG = RunConfig("plym4", seed=0, n_ex=5, n_fgen=10)
 
@@ -284,6 +284,19 @@ def test_growth_exponent_of_figure_5_19_recovers_a_known_power_law():
     assert g["interval"][1] - g["interval"][0] == pytest.approx(2 * stats.t.ppf(0.975, 2 * len(classes) - 2) * line.stderr)
 
 
+def test_growth_over_seeds_is_a_t_interval_of_the_seeds_exponents():
+    classes = list(range(2, 21))
+    truth = [1.5, 1.7, 1.6, 1.9]
+    runs = [{"fold": 1, "added": [{"classes": c, "sampled": int(n)} for c, n in
+                                  zip(classes, np.diff([0, *[round(30.0 * c**b) for c in classes]]))]} for b in truth]
+    g = growth_over_seeds(runs, [0, 1, 2, 3])
+    assert g["exponents"] == pytest.approx(truth, abs=2e-3) and g["seeds"] == [0, 1, 2, 3] and g["fold"] == 1
+    b = np.array(g["exponents"])
+    half = stats.t.ppf(0.975, 3) * b.std(ddof=1) / 2  # n - 1 = 3 degrees of freedom, sqrt(4) = 2
+    assert g["mean"] == pytest.approx(b.mean()) and g["interval"] == pytest.approx([b.mean() - half, b.mean() + half])
+    assert g["exponents"][2] == pytest.approx(growth(runs[2:3])["exponent"])  # each seed's own fit of figure 5.19
+
+
 def test_seed_study_is_a_paired_one_tailed_t_test():
     runs = [{"fold": 1, "stages": [{"test": {"accuracy": a}, "features": {"queried": 20.0 + a}},
                                    {"test": {"accuracy": b}, "features": {"queried": 8.0 + b}}]}
@@ -306,11 +319,14 @@ def test_seeds_and_incremental_commands(tmp_path, capsys):
     assert report["seeds"]["novice"]["values"][0] == report["folds"][0]["stages"][0]["test"]["accuracy"]
     assert (tmp_path / "s" / "seed1" / "fold1" / "learner.json").is_file()
     assert "2 seeds, fold 1: novice accuracy" in capsys.readouterr().out
-    assert run.main(["incremental", *common, "--stages", "0", "--out", str(tmp_path / "i")]) == 0
+    assert run.main(["incremental", *common, "--stages", "0", "--seeds", "2", "--out", str(tmp_path / "i")]) == 0
     report = json.loads((tmp_path / "i" / "report.json").read_text())
     assert report["config"]["incremental"] and [s["classes"] for s in report["folds"][0]["stages"]] == [2, 3]
     markdown = (tmp_path / "i" / "report.md").read_text()
     assert "figure 5.13 form" in markdown and "incremental, alg. 5.4" in markdown
+    growth_seeds = report["seeds"]["growth"]
+    assert growth_seeds["seeds"] == [0, 1] and growth_seeds["exponents"][0] == report["growth"]["folds"]["1"]["exponent"]
+    assert "(figure 5.19), fold 1" in markdown and "2 seeds, fold 1: features sampled ~ classes^b" in capsys.readouterr().out
     check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0], report["config"])
 
 

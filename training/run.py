@@ -53,7 +53,7 @@ from training.recognition.protocol import Fold, RunConfig, confusion, feature_bl
 from training.plots import fold_curves_figure, write_curves
 from training.grasping.command import add_parser as add_grasp_parser
 from training.recognition.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
-from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, seed_study, write_json, write_markdown
+from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, write_json, write_markdown
 
 
 def salient(args) -> int:
@@ -327,6 +327,8 @@ def recognize_command(args, incremental: bool = False) -> int:
     if args.seeds > 1:
         runs = [folds[0]] + [r["entry"] for r in results[args.folds:]]
         seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
+        if incremental and all(len(r["added"]) > 1 for r in runs):
+            seeds["growth"] = growth_over_seeds(runs, seeds["seeds"])
     seconds = time.perf_counter() - start
     report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), seconds, folds, seeds)
     if args.peers:
@@ -340,6 +342,10 @@ def recognize_command(args, incremental: bool = False) -> int:
     if seeds:
         print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
               f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, one-tailed paired t-test p = {seeds['p']:.2g}")
+        if "growth" in seeds:
+            g = seeds["growth"]
+            print(f"{args.seeds} seeds, fold 1: features sampled ~ classes^b, b = {g['mean']:.2f} "
+                  f"(95% interval over seeds {g['interval'][0]:.2f} to {g['interval'][1]:.2f})")
     print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
     return 0
 

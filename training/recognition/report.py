@@ -61,19 +61,36 @@ def growth(folds: list[dict]) -> dict:
     """Figure 5.19: features sampled so far against the number of classes taught, and the exponent b
     of sampled ~ a * classes**b fitted by least squares on log-log over the points of every fold
     (each fold's own fit too), with a 95% interval from the slope's standard error (t, n - 2 df)."""
-    def fit(points: list[tuple[int, int]]) -> dict:
-        x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
-        line = stats.linregress(x, y)
-        half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else math.nan
-        return {"exponent": float(line.slope), "interval": [float(line.slope) - half, float(line.slope) + half],
-                "points": len(points)}
-
-    curves = {f["fold"]: [(a["classes"], int(total)) for a, total in
-                          zip(f["added"], np.cumsum([a["sampled"] for a in f["added"]]))] for f in folds}
+    curves = {f["fold"]: _sampled_curve(f) for f in folds}
     pooled = [p for points in curves.values() for p in points]
-    out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): fit(v) for k, v in curves.items()}}
-    out.update(fit(pooled) if len(pooled) > 1 else {"exponent": math.nan, "interval": [math.nan, math.nan], "points": len(pooled)})
+    out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): _power_fit(v) for k, v in curves.items()}}
+    out.update(_power_fit(pooled) if len(pooled) > 1 else {"exponent": math.nan, "interval": [math.nan, math.nan], "points": len(pooled)})
     return out
+
+
+def _sampled_curve(fold: dict) -> list[tuple[int, int]]:
+    """(classes taught, features sampled so far) after each added class of an incremental fold."""
+    return [(a["classes"], int(total)) for a, total in zip(fold["added"], np.cumsum([a["sampled"] for a in fold["added"]]))]
+
+
+def _power_fit(points: list[tuple[int, int]]) -> dict:
+    """Least-squares line on log-log: its slope b and a 95% interval from the slope's standard error."""
+    x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
+    line = stats.linregress(x, y)
+    half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else math.nan
+    return {"exponent": float(line.slope), "interval": [float(line.slope) - half, float(line.slope) + half],
+            "points": len(points)}
+
+
+def growth_over_seeds(runs: list[dict], seeds: list[int]) -> dict:
+    """Figure 5.19's exponent b of one incremental fold trained with several seeds: each seed's own
+    fit (:func:`_power_fit`), their mean and a 95% t-interval of the mean over seeds (n - 1 df), the
+    spread that a single run's slope interval does not show."""
+    exponents = np.array([_power_fit(_sampled_curve(r))["exponent"] for r in runs])
+    mean = float(exponents.mean())
+    half = float(stats.t.ppf(0.975, len(runs) - 1) * exponents.std(ddof=1) / math.sqrt(len(runs)))
+    return {"seeds": seeds, "fold": runs[0]["fold"], "exponents": [float(b) for b in exponents], "mean": mean,
+            "interval": [mean - half, mean + half]}
 
 
 def seed_study(runs: list[dict], seeds: list[int]) -> dict:
@@ -270,6 +287,11 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                   f"| features queried, mean +- sd | {s['novice_queried']['mean']:.1f} +- {s['novice_queried']['sd']:.1f} | "
                   f"{s['expert_queried']['mean']:.1f} +- {s['expert_queried']['sd']:.1f} |", "",
                   f"Paired one-tailed t-test, expert > novice: t = {s['t']:.2f}, p = {s['p']:.2g}.", ""]
+        if "growth" in s:
+            g = s["growth"]
+            lines += [f"Growth of the features sampled with the classes (figure 5.19), fold {g['fold']}: classes^b with "
+                      f"b = {g['mean']:.2f} on average over the seeds (95% interval {g['interval'][0]:.2f} to "
+                      f"{g['interval'][1]:.2f}); per seed: " + ", ".join(f"{k} {b:.2f}" for k, b in zip(g["seeds"], g["exponents"])), ""]
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
                   "(figure 5.1 form).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
