@@ -309,6 +309,14 @@ def test_seed_study_is_a_paired_one_tailed_t_test():
     assert study["novice"]["mean"] == pytest.approx(np.mean([.6, .62, .55, .64]))
     assert study["expert"]["sd"] == pytest.approx(np.std([.8, .75, .81, .7], ddof=1))
 
+    def phase(classes, novice, expert):  # alg. 5.4: stage 0 and one expert stage per class count
+        return [{"classes": classes, "test": {"accuracy": a}, "features": {"queried": q}} for a, q in ((novice, 9.0), (expert, 4.0))]
+
+    incremental = [{"fold": 1, "stages": phase(2, .95, .97) + phase(3, a, b)} for a, b in [(.6, .8), (.62, .75), (.55, .81)]]
+    study = seed_study(incremental, [0, 1, 2])  # the novices are stage 0 with all three classes, not with two
+    assert study["novice"]["values"] == [.6, .62, .55] and study["expert"]["values"] == [.8, .75, .81]
+    assert study["novice_queried"]["mean"] == 9.0 and study["expert_queried"]["mean"] == 4.0
+
 
 def test_seeds_and_incremental_commands(tmp_path, capsys):
     common = ["--task", "plym", "--classes", "3", "--size", "32", "--folds", "1", "--device", "cpu", "--quiet",

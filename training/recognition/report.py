@@ -95,8 +95,10 @@ def growth_over_seeds(runs: list[dict], seeds: list[int]) -> dict:
 
 def seed_study(runs: list[dict], seeds: list[int]) -> dict:
     """Figure 5.5: novice (stage 0) vs expert (final stage) test accuracy and features queried of one
-    fold trained with several seeds; a paired one-tailed t-test of expert > novice accuracy."""
-    novice = np.array([r["stages"][0]["test"]["accuracy"] for r in runs])
+    fold trained with several seeds; a paired one-tailed t-test of expert > novice accuracy. In an
+    incremental run the novice is stage 0 of the last class added, so both face every class."""
+    novices = [_novice(r) for r in runs]
+    novice = np.array([s["test"]["accuracy"] for s in novices])
     expert = np.array([r["stages"][-1]["test"]["accuracy"] for r in runs])
     test = stats.ttest_rel(expert, novice, alternative="greater")
 
@@ -104,9 +106,16 @@ def seed_study(runs: list[dict], seeds: list[int]) -> dict:
         return {"values": [float(v) for v in values], "mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1))}
 
     return {"seeds": seeds, "fold": runs[0]["fold"], "novice": spread(novice), "expert": spread(expert),
-            "novice_queried": spread([r["stages"][0]["features"]["queried"] for r in runs]),
+            "novice_queried": spread([s["features"]["queried"] for s in novices]),
             "expert_queried": spread([r["stages"][-1]["features"]["queried"] for r in runs]),
             "t": float(test.statistic), "p": float(test.pvalue)}
+
+
+def _novice(run: dict) -> dict:
+    """The run's first stage with its final class count: stage 0, or in an incremental run (alg. 5.4)
+    stage 0 of the last class added."""
+    final = run["stages"][-1].get("classes")
+    return next(s for s in run["stages"] if s.get("classes") == final)
 
 
 def write_json(path: Path, report: dict) -> None:
