@@ -96,6 +96,9 @@ DAMAGE = {
     "instance value above 1": lambda s: s["instances"].__setitem__("values", encode_array(
         np.where(np.isnan(decode_array(s["instances"]["values"])), np.nan, 2.0))),
     "usage by a negative index": lambda s: s["usage"].append([-2, 1]),
+    "an instance feature listed twice": lambda s: s["instances"]["features"].__setitem__(1, s["instances"]["features"][0]),
+    "an image listed twice": lambda s: s["instances"]["images"].__setitem__(1, s["instances"]["images"][0]),
+    "a network feature listed twice": lambda s: s["networks"][0]["features"].append(s["networks"][0]["features"][0]),
     "threshold as a string": lambda s: s["networks"][0]["threshold"].__setitem__(0, "0.5"),
     "a huge integer in the prior": lambda s: s["networks"][0]["prior"].__setitem__(0, 10**400),
     "a CPT of impossible shape": lambda s: s["networks"][0]["cpt"][0].__setitem__("shape", [1e999, 2]),
@@ -215,7 +218,8 @@ def test_damaged_fields_of_a_fold_checkpoint_are_refused_on_resume(small_task, t
         values = decode_array(data["cache"]["values"])
         data["cache"]["values"] = encode_array(np.where(np.isnan(values), np.nan, 3.0))
 
-    for damage in (lambda d: d["state"].__setitem__("t_ksd", 7.0), lambda d: d["state"].__setitem__("stage", -1),
+    for damage in (lambda d: d["state"].__setitem__("t_ksd", 7.0),
+                   lambda d: d["cache"]["features"].__setitem__(1, d["cache"]["features"][0]), lambda d: d["state"].__setitem__("stage", -1),
                    lambda d: d["state"].__setitem__("done", "no"), cache_above_one,
                    lambda d: d["learner"]["networks"][0]["threshold"].__setitem__(0, math.nan)):
         data = json.loads(json.dumps(good))

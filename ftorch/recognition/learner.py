@@ -431,6 +431,8 @@ class DistinctiveFeatureLearner:
             raise ValueError("instance values outside [0, 1] (feature values are similarities, eq. 3.13)")
         if columns:
             self.instances.set_block(self.instances.images, columns, values.T)
+        if len(self.instances.features) < len(columns):
+            raise ValueError("an instance feature listed twice")
 
     def save(self, path, training: bool = False) -> None:
         """Write the learner to ``path`` (JSON, atomically): what recognition needs, or with

@@ -93,6 +93,9 @@ class ValueCache:
         if not np.array_equal(values.astype(self.dtype), values, equal_nan=True):
             raise InputError(f"value cache holds values that {self.dtype} storage cannot hold exactly: "
                              "written by a feature space of another precision")
-        self._row = {f: i for i, f in enumerate(features)}
+        row = {f: i for i, f in enumerate(features)}
+        if len(row) < len(features):
+            raise InputError("value cache is damaged: a feature listed twice")
+        self._row = row
         self._table = GrowingTable(self.images, dtype=self.dtype)
         self._table.add_rows(values)
