@@ -280,7 +280,8 @@ def test_growth_exponent_of_figure_5_19_recovers_a_known_power_law():
     assert g["folds"]["1"]["exponent"] == pytest.approx(1.6, abs=2e-3) == g["folds"]["2"]["exponent"]
     assert g["points"] == 2 * len(classes) and g["interval"][0] < 1.6 < g["interval"][1]
     line = stats.linregress(np.log(classes * 2), np.log([p[1] for k in ("1", "2") for p in g["sampled"][k]]))
-    assert g["exponent"] == pytest.approx(line.slope)
+    assert g["exponent"] == pytest.approx(line.slope) and g["scale"] == pytest.approx(np.exp(line.intercept))
+    assert g["folds"]["1"]["scale"] == pytest.approx(40.0, rel=1e-2)  # a of a * classes**b
     assert g["interval"][1] - g["interval"][0] == pytest.approx(2 * stats.t.ppf(0.975, 2 * len(classes) - 2) * line.stderr)
 
 
@@ -295,6 +296,7 @@ def test_growth_over_seeds_is_a_t_interval_of_the_seeds_exponents():
     half = stats.t.ppf(0.975, 3) * b.std(ddof=1) / 2  # n - 1 = 3 degrees of freedom, sqrt(4) = 2
     assert g["mean"] == pytest.approx(b.mean()) and g["interval"] == pytest.approx([b.mean() - half, b.mean() + half])
     assert g["exponents"][2] == pytest.approx(growth(runs[2:3])["exponent"])  # each seed's own fit of figure 5.19
+    assert g["sampled"]["2"] == growth(runs[2:3])["sampled"]["1"]  # each seed's curve, drawn in growth.png
 
 
 def test_seed_study_is_a_paired_one_tailed_t_test():
@@ -335,6 +337,8 @@ def test_seeds_and_incremental_commands(tmp_path, capsys):
     growth_seeds = report["seeds"]["growth"]
     assert growth_seeds["seeds"] == [0, 1] and growth_seeds["exponents"][0] == report["growth"]["folds"]["1"]["exponent"]
     assert "(figure 5.19), fold 1" in markdown and "2 seeds, fold 1: features sampled ~ classes^b" in capsys.readouterr().out
+    assert "](growth.png)" in (tmp_path / "i" / "report.md").read_text()
+    assert cv2.imread(str(tmp_path / "i" / "growth.png")) is not None
     check_events(tmp_path / "i" / "tensorboard" / "fold1", report["folds"][0], report["config"])
 
 

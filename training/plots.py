@@ -1,6 +1,7 @@
 """Figure 5.1 (and 5.11 for incremental tasks) drawn with matplotlib: per fold, against the stage,
 the test outcome proportions with t_KSD written at each stage (boxed where the target was met),
-the feature counts, and the features sampled so far. Every panel has labelled axes and a legend;
+the feature counts, and the features sampled so far; and figure 5.19 for incremental tasks, the
+features sampled against the classes taught on log-log axes with the fitted power law. Every panel has labelled axes and a legend;
 the figure's title names the task and the seed. The ``*_figure`` functions return the matplotlib
 figure: :func:`figure_rgb` renders it for PNG files, ``SummaryWriter.add_figure`` for TensorBoard
 (both close it)."""
@@ -93,4 +94,60 @@ def write_curves(out: Path, report: dict) -> Path:
     """``out``/curves.png: :func:`curves_figure`."""
     path = out / "curves.png"
     save_rgb(path, figure_rgb(curves_figure(report)))
+    return path
+
+
+def growth_figure(report: dict) -> Figure:
+    """Figure 5.19: features sampled so far against classes taught, log-log, for every fold (and
+    fold 1 of every further seed of a ``--seeds`` run, in grey) with the power law a * classes**b
+    fitted over the folds (the report's ``growth`` block; ``seeds.growth`` in the title)."""
+    growth, config = report["growth"], report.get("config", {})
+    figure, ax = plt.subplots(figsize=(6.4, 4.6), dpi=100)
+    for k, points in growth["sampled"].items():
+        b = growth["folds"][k]["exponent"]
+        ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {b:.2f}")
+    seeds = report.get("seeds", {}).get("growth")
+    if seeds:
+        more = seeds["seeds"][1:]
+        for n, points in enumerate(list(seeds["sampled"].values())[1:]):
+            ax.plot(*zip(*points), color="0.6", linewidth=0.8, marker=".", markersize=3, zorder=1,
+                    label=f"fold {seeds['fold']}, seed{'s' * (len(more) > 1)} {_span(more)}" if n == 0 else None)
+    classes = np.array(sorted({c for points in growth["sampled"].values() for c, _ in points}))
+    ax.plot(classes, growth["scale"] * classes.astype(float) ** growth["exponent"], "k--", linewidth=1,
+            label=f"fit a * classes^b: b = {growth['exponent']:.2f}{_interval(growth['interval'])}")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ticks = [classes[0]]
+    for c in classes[1:]:  # labels at least 0.1 apart in log(classes), the last class always
+        if np.log(c / ticks[-1]) >= 0.1:
+            ticks.append(c)
+    ticks[-1] = classes[-1]
+    ax.set_xticks(ticks, [str(c) for c in ticks], fontsize=7)
+    ax.minorticks_off()
+    ax.set_xlabel("classes taught")
+    ax.set_ylabel("features sampled so far")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, loc="upper left")
+    title = f"{_title(config)}: figure 5.19 form"
+    if seeds:
+        title += f"\nb over seeds {_span(seeds['seeds'])}: {seeds['mean']:.2f}{_interval(seeds['interval'])}"
+    ax.set_title(title, fontsize=10)
+    figure.tight_layout()
+    return figure
+
+
+def _span(seeds: list[int]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else str(seeds[0])
+
+
+def _interval(interval: list[float]) -> str:
+    """The text " (95% low-high)", or none where too few points gave no interval."""
+    low, high = interval
+    return "" if np.isnan(low) else f" (95% {low:.2f}-{high:.2f})"
+
+
+def write_growth(out: Path, report: dict) -> Path:
+    """``out``/growth.png: :func:`growth_figure`."""
+    path = out / "growth.png"
+    save_rgb(path, figure_rgb(growth_figure(report)))
     return path

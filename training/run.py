@@ -50,7 +50,7 @@ from training.cli.devices import resolve_device
 from training.cli.outputs import run_folder, writable_folder
 from training.cli.parallel import TasksFailed, run_tasks
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.plots import fold_curves_figure, write_curves
+from training.plots import fold_curves_figure, write_curves, write_growth
 from training.grasping.command import add_parser as add_grasp_parser
 from training.recognition.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
 from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, write_json, write_markdown
@@ -335,6 +335,8 @@ def recognize_command(args, incremental: bool = False) -> int:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
     write_json(out / "report.json", report)
     figures.append(str(write_curves(out, report).relative_to(out)))
+    if "growth" in report and report["growth"]["points"] > 1:
+        figures.append(str(write_growth(out, report).relative_to(out)))
     write_markdown(out / "report.md", report, figures)
     avg = report["average"]["final"]
     print(f"average: accuracy {avg['test']['accuracy']:.2f}, correct {avg['test']['correct']:.2f}, "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ftorch.errors import InputError
 
-RUN_ENTRIES = re.compile(r"^(report\.(json|md)|(curves|errors|grasps|reductions)\.png|fold\d+(-online)?(_features\.png)?|"
+RUN_ENTRIES = re.compile(r"^(report\.(json|md)|(curves|errors|grasps|growth|reductions)\.png|fold\d+(-online)?(_features\.png)?|"
                          r"seed\d+|robustness)$")  # what recognize, incremental and grasp write in a run folder
 EVENT_RUNS = re.compile(r"^(fold\d+(-online)?|seed\d+)$")  # TensorBoard runs in a log folder
 

@@ -64,7 +64,8 @@ def growth(folds: list[dict]) -> dict:
     curves = {f["fold"]: _sampled_curve(f) for f in folds}
     pooled = [p for points in curves.values() for p in points]
     out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): _power_fit(v) for k, v in curves.items()}}
-    out.update(_power_fit(pooled) if len(pooled) > 1 else {"exponent": math.nan, "interval": [math.nan, math.nan], "points": len(pooled)})
+    out.update(_power_fit(pooled) if len(pooled) > 1 else
+               {"exponent": math.nan, "interval": [math.nan, math.nan], "scale": math.nan, "points": len(pooled)})
     return out
 
 
@@ -74,23 +75,25 @@ def _sampled_curve(fold: dict) -> list[tuple[int, int]]:
 
 
 def _power_fit(points: list[tuple[int, int]]) -> dict:
-    """Least-squares line on log-log: its slope b and a 95% interval from the slope's standard error."""
+    """Least-squares line on log-log: its slope b, its scale a = exp(intercept) and a 95% interval of
+    b from the slope's standard error."""
     x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
     line = stats.linregress(x, y)
     half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else math.nan
     return {"exponent": float(line.slope), "interval": [float(line.slope) - half, float(line.slope) + half],
-            "points": len(points)}
+            "scale": float(np.exp(line.intercept)), "points": len(points)}
 
 
 def growth_over_seeds(runs: list[dict], seeds: list[int]) -> dict:
     """Figure 5.19's exponent b of one incremental fold trained with several seeds: each seed's own
     fit (:func:`_power_fit`), their mean and a 95% t-interval of the mean over seeds (n - 1 df), the
     spread that a single run's slope interval does not show."""
-    exponents = np.array([_power_fit(_sampled_curve(r))["exponent"] for r in runs])
+    curves = [_sampled_curve(r) for r in runs]
+    exponents = np.array([_power_fit(c)["exponent"] for c in curves])
     mean = float(exponents.mean())
     half = float(stats.t.ppf(0.975, len(runs) - 1) * exponents.std(ddof=1) / math.sqrt(len(runs)))
     return {"seeds": seeds, "fold": runs[0]["fold"], "exponents": [float(b) for b in exponents], "mean": mean,
-            "interval": [mean - half, mean + half]}
+            "interval": [mean - half, mean + half], "sampled": {str(k): c for k, c in zip(seeds, curves)}}
 
 
 def seed_study(runs: list[dict], seeds: list[int]) -> dict:
@@ -303,5 +306,5 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                       f"{g['interval'][1]:.2f}); per seed: " + ", ".join(f"{k} {b:.2f}" for k, b in zip(g["seeds"], g["exponents"])), ""]
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
-                  "(figure 5.1 form).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
+                  "(figure 5.1 form; growth.png: figure 5.19 for incremental runs).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
     write_text(path, "\n".join(lines))
