@@ -1,6 +1,7 @@
 """Checkpoint encoding: exact round trips, float32 only where exact, bounded inflation, shared feature tables."""
 import base64
 import json
+import lzma
 import zlib
 
 import numpy as np
@@ -47,6 +48,19 @@ def test_inflation_stops_at_the_declared_size():
         decode_text({"bytes": 10, "data": text["data"]})
 
 
+def test_texts_are_xz_blocks_and_version_2_zlib_texts_still_read():
+    text = json.dumps([{"type": "texel", "vector": [0.1 * i] * 15} for i in range(200)])
+    packed = encode_text(text)
+    assert base64.b64decode(packed["data"]).startswith(b"\xfd7zXZ\x00") and decode_text(packed) == text
+    raw = text.encode()
+    old = {"bytes": len(raw), "data": base64.b64encode(zlib.compress(raw, 6)).decode()}  # as version 2 wrote it
+    assert decode_text(old) == text and len(packed["data"]) < len(old["data"])
+    for damaged in (lzma.compress(raw, preset=1) + b"tail", lzma.compress(raw, preset=1)[:-20],
+                    lzma.compress(bytes(10**7), preset=1)):  # data after the stream, a cut stream, a bomb
+        with pytest.raises(ValueError, match="damaged text"):
+            decode_text({"bytes": len(raw), "data": base64.b64encode(damaged).decode()})
+
+
 def test_feature_tables_store_each_feature_once_and_read_back_equal():
     texel = Texel([0.1 * (i + 1) for i in range(15)])
     pair = Geometric((Part("edgel", [1.0, 0.0]), Part("edgel", [0.5, 0.25], phi=0.3, dtheta=1.1, d=2.0, dsigma=1.4)))
@@ -87,5 +101,5 @@ def test_a_deeply_nested_or_old_checkpoint_file_gets_one_line(tmp_path):
     with pytest.raises(InputError, match="nested too deeply"):
         load_checkpoint(path, "fold")
     path.write_text(json.dumps({"format": "ftorch", "kind": "fold", "version": 1}))
-    with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads version 2"):
+    with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads versions 2 to 3"):
         load_checkpoint(path, "fold")
