@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import lzma
+import os
 import tempfile
 import zlib
 from collections import OrderedDict
@@ -37,7 +37,7 @@ MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
 
 ROWS = 1024  # rows per compressed block of an array
-_blocks: OrderedDict = OrderedDict()  # raw bytes -> compressed block, the most recent 256
+_blocks: OrderedDict = OrderedDict()  # (raw bytes, xz) -> compressed block, the most recent 256
 
 
 def _compress(raw: bytes, xz: bool = False) -> str:

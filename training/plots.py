@@ -1,10 +1,10 @@
 """Figure 5.1 (and 5.11 for incremental tasks) drawn with matplotlib: per fold, against the stage,
 the test outcome proportions with t_KSD written at each stage (boxed where the target was met),
 the feature counts, and the features sampled so far; and figure 5.19 for incremental tasks, the
-features sampled against the classes taught on log-log axes with the fitted power law. Every panel has labelled axes and a legend;
-the figure's title names the task and the seed. The ``*_figure`` functions return the matplotlib
-figure: :func:`figure_rgb` renders it for PNG files, ``SummaryWriter.add_figure`` for TensorBoard
-(both close it)."""
+features sampled against the classes taught on log-log axes with the fitted power law. Every panel
+has labelled axes and a legend; the figure's title names the task and the seed. The ``*_figure``
+functions return the matplotlib figure: :func:`figure_rgb` renders it for PNG files,
+``SummaryWriter.add_figure`` for TensorBoard (both close it)."""
 from __future__ import annotations
 
 from pathlib import Path
