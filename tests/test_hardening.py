@@ -219,7 +219,8 @@ def test_damaged_fields_of_a_fold_checkpoint_are_refused_on_resume(small_task, t
         data["cache"]["values"] = encode_array(np.where(np.isnan(values), np.nan, 3.0))
 
     for damage in (lambda d: d["state"].__setitem__("t_ksd", 7.0),
-                   lambda d: d["cache"]["features"].__setitem__(1, d["cache"]["features"][0]), lambda d: d["state"].__setitem__("stage", -1),
+                   lambda d: d["cache"]["features"].__setitem__(1, d["cache"]["features"][0]),
+                   lambda d: d["state"].__setitem__("stage", -1),
                    lambda d: d["state"].__setitem__("done", "no"), cache_above_one,
                    lambda d: d["learner"]["networks"][0]["threshold"].__setitem__(0, math.nan)):
         data = json.loads(json.dumps(good))
