@@ -11,6 +11,9 @@ from .images import as_image_batch, load_image
 from .recognition import DistinctiveFeatureLearner, ImageSet
 from .space import (BLOB, CORNER, EDGEL, FeatureSpace, ImageRecords, PartKind, SalientPoints, ScaleSpace,
                     ScaleSpaceOutput, feature_values)
+from .vml import resolve_vml
+
+resolve_vml()  # before any parallel float op can run: see ftorch.vml
 
 __all__ = [
     "BLOB", "CORNER", "DistinctiveFeatureLearner", "EDGEL", "FeatureSpace", "GraspLearner", "ImageRecords", "ImageSet",
