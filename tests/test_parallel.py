@@ -2,13 +2,15 @@
 import importlib.util
 import json
 import re
+import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from ftorch.errors import InputError
 from training import run
-from training.cli.parallel import TasksFailed, run_tasks
+from training.cli.parallel import CORES, TasksFailed, run_tasks, share_idle_cores
 
 from .test_protocol import check_events
 
@@ -51,6 +53,26 @@ def test_failed_tasks_run_once_more_and_results_keep_their_order(tmp_path, worke
 def test_processes_give_the_results_of_one_process():
     assert run_tasks(square, list(range(7)), [str(i) for i in range(7)], workers=2, progress=False) == [
         i * i for i in range(7)]
+
+
+def threads_while_waiting(seconds: float) -> tuple[int, int]:
+    """A task's torch threads at its start, and after waiting up to ``seconds`` for idle cores."""
+    start = torch.get_num_threads()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and torch.get_num_threads() < CORES:
+        share_idle_cores()
+        time.sleep(0.05)
+    return start, torch.get_num_threads()
+
+
+@pytest.mark.skipif(CORES < 2, reason="one core: there is nothing to share")
+def test_the_last_task_takes_the_idle_cores():
+    short, long = run_tasks(threads_while_waiting, [0.0, 60.0], ["short", "long"], workers=2, progress=False)
+    assert short == (CORES // 2, CORES // 2)  # two tasks for two workers: half the cores each
+    assert long == (CORES // 2, CORES)  # once the short one is done, all of them
+    threads = torch.get_num_threads()
+    share_idle_cores()  # outside a worker it changes nothing
+    assert torch.get_num_threads() == threads
 
 
 def test_two_workers_write_the_sequential_report(tmp_path):

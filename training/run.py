@@ -48,7 +48,7 @@ from training.data.builtin import builtin_scene
 from training.data.datasets import Task, load_task
 from training.cli.devices import resolve_device
 from training.cli.outputs import run_folder, writable_folder
-from training.cli.parallel import TasksFailed, run_tasks
+from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
 from training.plots import fold_curves_figure, write_curves, write_growth
 from training.grasping.command import add_parser as add_grasp_parser
@@ -218,7 +218,7 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
                     _image_set(task, test, space, progress, records=records.get(tuple(test))), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume,
-                                  checkpoint_every=args.checkpoint_every)
+                                  checkpoint_every=args.checkpoint_every, before_cycle=share_idle_cores)
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
         if args.augment:
             pictures.append(("augmented", augmented_overview(fold.train, len(train), f"{task.name}, seed {seed}, fold {k}")))

@@ -7,7 +7,12 @@ one. A task that raises is reported and run once more; one that fails again is r
 its error, the others still finish, and :class:`TasksFailed` names every failure.
 
 - ``workers=1`` and no Ray: in this process, one after another.
-- ``workers=N``: N local processes (``spawn``), each with ``cores // N`` torch threads.
+- ``workers=N``: N local processes (``spawn``), each with ``cores // N`` torch threads. Once fewer
+  tasks are left than workers, the busy ones take the idle workers' cores: a task calls
+  :func:`share_idle_cores` between its steps (a fold, before each cycle), which sets its threads
+  to ``cores // busy workers``. Seeds differ in length, so the last task would otherwise run on
+  one core while the others idle. Results do not depend on the thread count (the sequential run,
+  with all cores in one process, gives the same report).
 - ``ray=ADDRESS``: Ray tasks of one CPU each (``ray.init(address=ADDRESS)``; ``local`` starts a
   local instance with ``workers`` CPUs). Ray is an optional extra: ``pip install -e ".[distributed]"``.
 """
@@ -26,6 +31,9 @@ from tqdm import tqdm
 from ftorch.errors import InputError
 
 RETRIES = 1
+CORES = os.cpu_count() or 1
+
+_busy = None  # in a local worker process: the count of busy workers, shared with the runner
 
 
 class TasksFailed(RuntimeError):
@@ -41,6 +49,21 @@ def _with_threads(function: Callable, threads: int, argument):
     Ray task's call (module level, so both can pickle it)."""
     torch.set_num_threads(threads)
     return function(argument)
+
+
+def _start_worker(busy) -> None:
+    """A local worker process's initializer: remember the runner's count of busy workers."""
+    global _busy
+    _busy = busy
+
+
+def share_idle_cores() -> None:
+    """In a local worker process: use ``cores // busy workers`` torch threads, so that the last
+    tasks take the cores of workers that have run out of tasks. Elsewhere it does nothing."""
+    if _busy is not None:
+        threads = max(1, CORES // max(1, _busy.value))
+        if threads != torch.get_num_threads():
+            torch.set_num_threads(threads)
 
 
 def _describe(error: BaseException) -> str:
@@ -79,12 +102,13 @@ def _here(function: Callable, arguments: Sequence, names: Sequence[str]) -> list
 
 
 def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str], workers: int, progress: bool) -> list:
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    call = partial(_with_threads, function, threads)
+    call = partial(_with_threads, function, max(1, CORES // workers))
     results: list = [None] * len(arguments)
     failures: dict[str, str] = {}
     attempts = [0] * len(arguments)
-    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"))
+    context = get_context("spawn")
+    busy = context.Value("i", workers)
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker, initargs=(busy,))
     try:
         with tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
             pending = {pool.submit(call, a): i for i, a in enumerate(arguments)}
@@ -105,6 +129,7 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
                     else:
                         failures[names[i]] = _describe(error)
                         bar.update(1)
+                busy.value = min(workers, len(pending))  # fewer than workers: the rest take the idle cores
     except BaseException:
         _stop(pool)
         raise

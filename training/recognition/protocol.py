@@ -234,13 +234,14 @@ class Fold:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
 
-    def run(self, max_cycles: int = 20, stages: int | None = 0, resume: bool = False,
-            after_cycle=None, checkpoint_every: float = 0.0) -> tuple[dict, DistinctiveFeatureLearner]:
+    def run(self, max_cycles: int = 20, stages: int | None = 0, resume: bool = False, after_cycle=None,
+            checkpoint_every: float = 0.0, before_cycle=None) -> tuple[dict, DistinctiveFeatureLearner]:
         """Train stages 0..``stages`` (None: auto; per added class in an incremental fold, at most
         ``INCREMENTAL_LIMIT`` expert stages) and test after each; returns the fold's report entry
         and the learner (also saved as learner.json). The checkpoint is written after a cycle or
         stage once ``checkpoint_every`` seconds have passed since the last write (0: every time), and
-        at the end; ``after_cycle(n)`` is called after a write that holds the n-th cycle."""
+        at the end; ``after_cycle(n)`` is called after a write that holds the n-th cycle, and
+        ``before_cycle()`` before each cycle (the runner's workers take idle cores there)."""
         if resume and self.checkpoint.is_file():
             learner, order, state = self._resume()
         else:
@@ -258,6 +259,8 @@ class Fold:
                 if cycles and (cycles[-1]["mistakes"] == 0 or len(cycles) >= max_cycles):
                     self._finish_stage(learner, state, start, stages, limit)
                 else:
+                    if before_cycle is not None:
+                        before_cycle()
                     cycles.append(self._cycle(learner, order, state.t_ksd, self._indices(self.train, state.phase)))
                     state.total_cycles += 1
                     bar.update(1)
