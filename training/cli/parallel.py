@@ -9,10 +9,10 @@ its error, the others still finish, and :class:`TasksFailed` names every failure
 - ``workers=1`` and no Ray: in this process, one after another.
 - ``workers=N``: N local processes (``spawn``), each with ``cores // N`` torch threads. Once fewer
   tasks are left than workers, the busy ones take the idle workers' cores: a task calls
-  :func:`share_idle_cores` between its steps (a fold, before each cycle), which sets its threads
-  to ``cores // busy workers``. Seeds differ in length, so the last task would otherwise run on
-  one core while the others idle. Results do not depend on the thread count (the sequential run,
-  with all cores in one process, gives the same report).
+  :func:`share_idle_cores` between its steps (a fold before each cycle, a grasp seed before each
+  fold), which sets its threads to ``cores // busy workers``. Seeds differ in length, so the last
+  task would otherwise run on one core while the others idle. Results do not depend on the
+  thread count (the sequential run, with all cores in one process, gives the same report).
 - ``ray=ADDRESS``: Ray tasks of one CPU each (``ray.init(address=ADDRESS)``; ``local`` starts a
   local instance with ``workers`` CPUs). Ray is an optional extra: ``pip install -e ".[distributed]"``.
 """

@@ -17,7 +17,7 @@ from training.cli.arguments import MAX_SEED, at_least, number, seed
 from training.plots import figure_rgb
 from training.cli.devices import resolve_device
 from training.cli.outputs import run_folder
-from training.cli.parallel import TasksFailed, run_tasks
+from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
 from training.recognition.report import write_json
 
 from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
@@ -130,6 +130,7 @@ def seed_task(job: dict) -> dict:
     folds, figures = [], []
     for k in range(1, args.folds + 1):
         for mode in modes:
+            share_idle_cores()  # the last seeds of a --workers run take the idle cores
             learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k, finger_choice=args.finger_choice,
                                    mu0_split=_split(args))
             fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
