@@ -56,10 +56,10 @@ def test_processes_give_the_results_of_one_process():
 
 
 def threads_while_waiting(seconds: float) -> tuple[int, int]:
-    """A task's torch threads at its start, and after waiting up to ``seconds`` for idle cores."""
+    """A task's torch threads at its start, and once they changed (waiting up to ``seconds``)."""
     start = torch.get_num_threads()
     deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and torch.get_num_threads() < CORES:
+    while time.monotonic() < deadline and torch.get_num_threads() == start:
         share_idle_cores()
         time.sleep(0.05)
     return start, torch.get_num_threads()
@@ -73,6 +73,12 @@ def test_the_last_task_takes_the_idle_cores():
     threads = torch.get_num_threads()
     share_idle_cores()  # outside a worker it changes nothing
     assert torch.get_num_threads() == threads
+
+
+@pytest.mark.skipif(CORES < 4, reason="fewer than four cores: four workers get one thread each either way")
+def test_more_workers_than_tasks_share_the_cores_from_the_start():
+    assert run_tasks(threads_while_waiting, [60.0, 60.0], ["a", "b"], workers=4, progress=False) == [
+        (CORES // 4, CORES // 2)] * 2
 
 
 def test_two_workers_write_the_sequential_report(tmp_path):

@@ -107,7 +107,7 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
     failures: dict[str, str] = {}
     attempts = [0] * len(arguments)
     context = get_context("spawn")
-    busy = context.Value("i", workers)
+    busy = context.Value("i", min(workers, len(arguments)))  # more workers than tasks: share from the start
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker, initargs=(busy,))
     try:
         with tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
