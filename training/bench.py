@@ -260,9 +260,9 @@ def print_report(report: dict) -> None:
               f"ratio {e['ratio_vs_reference']:.0f}  max error vs reference {e['max_error_vs_reference']:.1e}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
-    commands = parser.add_subparsers(dest="command", required=True)
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
+    commands = top.add_subparsers(dest="command", required=True)
     p = commands.add_parser("features", help="feature-space benchmark")
     p.add_argument("--quick", action="store_true", help="fewer repeats and features (under a minute)")
     p.add_argument("--device", default="cpu", help="cpu, cuda[:N] or auto (default cpu)")
@@ -270,7 +270,11 @@ def main(argv: list[str] | None = None) -> int:
     p = commands.add_parser("recognition", help="exact-inference benchmark (alg. 4.4 inner loop)")
     p.add_argument("--quick", action="store_true", help="fewer evidence sets")
     p.add_argument("--json", help="write the figures to this JSON file")
-    args = parser.parse_args(argv)
+    return top
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     if args.command == "recognition":
         report = recognition(args)
         print_recognition(report)
