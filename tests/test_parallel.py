@@ -123,6 +123,25 @@ def test_the_folds_compute_each_view_set_once(tmp_path, monkeypatch):
     assert len(calls) == 2 and sum(calls) == 3 * 15  # three solids of 15 views, each view once
 
 
+def test_a_process_without_shared_records_computes_each_view_set_once(tmp_path, monkeypatch):
+    """Ray tasks and workers without shared memory compute their own records: each view set once
+    per process, for the first task that needs it, and the report stays the same."""
+    seeds = [*ARGS, "--seeds", "2"]  # fold 1 and 2 of seed 1, fold 1 of seed 2: all on the same two view sets
+    assert run.main([*seeds, "--out", str(tmp_path / "shared")]) == 0
+    calls = []
+    records = run.FeatureSpace.records
+    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    monkeypatch.setattr(run, "shared_records", lambda *arguments: {})
+    assert run.main([*seeds, "--out", str(tmp_path / "own")]) == 0
+    assert len(calls) == 2 and sum(calls) == 3 * 15  # not six sets
+    assert report_text(tmp_path / "own") == report_text(tmp_path / "shared")
+    calls.clear()  # a worker that runs a task of another data set next (a Ray worker serves many runs)
+    other = tmp_path / "other"
+    args = {**vars(run.parser().parse_args([*seeds, "--size", "24"])), "quiet": True}
+    run.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False})
+    assert len(calls) == 2  # its own records, not those of the views with the same indices before
+
+
 def is_shared(records) -> bool:
     return records.pyramid.first.is_shared() and records.pyramid.second.is_shared() and records.x.is_shared()
 

@@ -114,7 +114,8 @@ def shared_records(args, task: Task, jobs: list[dict], device: torch.device) -> 
     records are the same bit for bit). Local worker processes receive them through torch's shared
     memory, so every pyramid is in memory once, however many workers use it. Ray tasks, which may
     run on other machines, compute their own, and so do local processes on a GPU (no CUDA memory
-    is passed between processes); augmented training sets too (their copies are drawn per fold).
+    is passed between processes), each view set once per process (:func:`fold_task`); augmented
+    training sets too (their copies are drawn per fold).
     """
     if args.ray is not None or (args.workers > 1 and device.type != "cpu"):
         return {}
@@ -205,18 +206,22 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
                 incremental: bool, records: dict[tuple, ImageRecords] | None = None
                 ) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
     """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}, with
-    the view sets' ``records`` where computed before (:func:`shared_records`); also returns the
-    learned features' pictures."""
+    the view sets' ``records`` where computed before (:func:`shared_records`), to which it adds
+    those it computes (not augmented training sets, whose copies are drawn per fold); also returns
+    the learned features' pictures."""
     from torch.utils.tensorboard import SummaryWriter
 
     config = run_config(args, task, seed, incremental)
     train, test = task.fold(k)
     progress = not args.quiet
-    records = records or {}
+    records = {} if records is None else records
     with SummaryWriter(str(logdir / f"fold{k}")) as writer:
         fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k, records.get(tuple(train))),
                     _image_set(task, test, space, progress, records=records.get(tuple(test))), config,
                     out / f"fold{k}", task.classes(), progress, writer, incremental)
+        records.setdefault(tuple(test), fold.test.all_records)
+        if not args.augment:
+            records.setdefault(tuple(train), fold.train.all_records)
         entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume,
                                   checkpoint_every=args.checkpoint_every, before_cycle=share_idle_cores)
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
@@ -255,6 +260,10 @@ def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np
 
 
 _TASKS: dict[tuple, Task] = {}  # data sets loaded in this process, by their load_task arguments
+# the records of the loaded set's views that this process computed itself (Ray tasks, local
+# workers without shared records), by device and then view indices: every seed's fold 1 trains
+# and tests on the same views, so a worker computes them once, not once per seed
+_RECORDS: dict[str, dict[tuple, ImageRecords]] = {}
 
 
 def _task_key(args) -> tuple:
@@ -265,17 +274,21 @@ def _task_key(args) -> tuple:
 def fold_task(job: dict) -> dict:
     """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
     class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
-    ``job['records']``: the view sets' records where computed before (:func:`shared_records`).
+    ``job['records']``: the view sets' records where computed before (:func:`shared_records`); where
+    none are, those this process computed for an earlier task (``_RECORDS``).
     Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
     key = _task_key(args)
     if key not in _TASKS:
         _TASKS.clear()
+        _RECORDS.clear()
         _TASKS[key] = load_task(*key)
-    space = FeatureSpace().to(resolve_device(args.device))
+    device = resolve_device(args.device)
+    space = FeatureSpace().to(device)
     out, k = Path(job["out"]), job["fold"]
+    records = job.get("records") or _RECORDS.setdefault(str(device), {})
     entry, fold, learner, pictures = _train_fold(args, _TASKS[key], k, job["seed"], space, out, Path(job["logdir"]),
-                                                 job["incremental"], job.get("records"))
+                                                 job["incremental"], records)
     figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
     (fold.folder / "networks").mkdir(exist_ok=True)
     for label, net in learner.networks.items():
@@ -297,6 +310,7 @@ def recognize_command(args, incremental: bool = False) -> int:
     torch.manual_seed(args.seed)
     task = load_task(*_task_key(args))
     _TASKS.clear()
+    _RECORDS.clear()
     _TASKS[_task_key(args)] = task
     parallel = args.workers > 1 or args.ray is not None
     settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
