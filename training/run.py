@@ -203,7 +203,7 @@ def _stages(text: str) -> int | None:
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
-                incremental: bool, records: dict[tuple, ImageRecords] | None = None
+                incremental: bool, records: dict[tuple, ImageRecords]
                 ) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
     """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}, with
     the view sets' ``records`` where computed before (:func:`shared_records`), to which it adds
@@ -214,7 +214,6 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
     config = run_config(args, task, seed, incremental)
     train, test = task.fold(k)
     progress = not args.quiet
-    records = {} if records is None else records
     with SummaryWriter(str(logdir / f"fold{k}")) as writer:
         fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k, records.get(tuple(train))),
                     _image_set(task, test, space, progress, records=records.get(tuple(test))), config,
@@ -259,11 +258,11 @@ def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np
     writer.add_figure("figures/curves", fold_curves_figure(entry, config.to_dict()), final["step"])
 
 
-_TASKS: dict[tuple, Task] = {}  # data sets loaded in this process, by their load_task arguments
-# the records of the loaded set's views that this process computed itself (Ray tasks, local
-# workers without shared records), by device and then view indices: every seed's fold 1 trains
-# and tests on the same views, so a worker computes them once, not once per seed
-_RECORDS: dict[str, dict[tuple, ImageRecords]] = {}
+# what this process loaded for its last run, by the load_task arguments and the device: the data
+# set, and the records of its views that the process computed itself (Ray tasks, local workers
+# without shared records), by view indices. Every seed's fold 1 trains and tests on the same
+# views, so a worker computes them once, not once per seed.
+_LOADED: dict[tuple, tuple[Task, dict[tuple, ImageRecords]]] = {}
 
 
 def _task_key(args) -> tuple:
@@ -271,24 +270,28 @@ def _task_key(args) -> tuple:
     return args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view
 
 
+def _loaded(args, device: torch.device) -> tuple[Task, dict[tuple, ImageRecords]]:
+    """The data set of a run and the records this process computed for its views (``_LOADED``)."""
+    key = (_task_key(args), str(device))
+    if key not in _LOADED:
+        _LOADED.clear()
+        _LOADED[key] = (load_task(*key[0]), {})
+    return _LOADED[key]
+
+
 def fold_task(job: dict) -> dict:
     """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
     class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
     ``job['records']``: the view sets' records where computed before (:func:`shared_records`); where
-    none are, those this process computed for an earlier task (``_RECORDS``).
+    none are, those this process computed for an earlier task (:func:`_loaded`).
     Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
-    key = _task_key(args)
-    if key not in _TASKS:
-        _TASKS.clear()
-        _RECORDS.clear()
-        _TASKS[key] = load_task(*key)
     device = resolve_device(args.device)
+    task, own = _loaded(args, device)
     space = FeatureSpace().to(device)
     out, k = Path(job["out"]), job["fold"]
-    records = job.get("records") or _RECORDS.setdefault(str(device), {})
-    entry, fold, learner, pictures = _train_fold(args, _TASKS[key], k, job["seed"], space, out, Path(job["logdir"]),
-                                                 job["incremental"], records)
+    entry, fold, learner, pictures = _train_fold(args, task, k, job["seed"], space, out, Path(job["logdir"]),
+                                                 job["incremental"], job.get("records") or own)
     figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
     (fold.folder / "networks").mkdir(exist_ok=True)
     for label, net in learner.networks.items():
@@ -308,10 +311,8 @@ def recognize_command(args, incremental: bool = False) -> int:
     out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite)
     args.checkpoints = out  # where an interrupted run continues from (main)
     torch.manual_seed(args.seed)
-    task = load_task(*_task_key(args))
-    _TASKS.clear()
-    _RECORDS.clear()
-    _TASKS[_task_key(args)] = task
+    _LOADED.clear()  # each command loads its data afresh
+    task, _ = _loaded(args, device)
     parallel = args.workers > 1 or args.ray is not None
     settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the tasks instead of one per fold
