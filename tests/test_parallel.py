@@ -165,5 +165,13 @@ def test_records_are_shared_only_where_workers_can_map_them(monkeypatch):
     assert run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}
     args.ray = None
     assert run.shared_records(args, task, jobs, run.torch.device("cuda")) == {}  # no CUDA memory between processes
-    monkeypatch.setattr(run.shutil, "disk_usage", lambda path: run.shutil._ntuple_diskusage(1 << 30, 1 << 30, 0))
-    assert run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}  # /dev/shm too small (containers)
+    nbytes = sum(r.nbytes for r in shared.values())
+    pyramids = sum(r.pyramid.first.nbytes + r.pyramid.second.nbytes for r in shared.values())
+    calls = []
+    records = run.FeatureSpace.records
+    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    for free, computed in ((nbytes, 2), (nbytes - 1, 2), (pyramids, 2), (pyramids - 1, 0)):  # /dev/shm too small (containers)
+        monkeypatch.setattr(run.shutil, "disk_usage", lambda path: run.shutil._ntuple_diskusage(1 << 40, (1 << 40) - free, free))
+        calls.clear()
+        assert (run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}) == (free < nbytes)
+        assert len(calls) == computed  # none where the pyramids alone would not fit

@@ -80,6 +80,14 @@ def test_records_of_mixed_sizes_keep_input_order():
     assert torch.equal(joined.responses[1, : alone.responses.shape[1], :, :56, :48], alone.responses[0])
 
 
+def test_the_pyramid_size_is_known_before_it_is_built():
+    space = FeatureSpace()
+    images = [random_image(40, 40, seed=7), random_image(56, 48, seed=8).to(torch.float32), random_image(33, 64, seed=9)]
+    for chosen in ([0], [1], [1, 2], [0, 1, 2]):
+        pyramid = space.records([images[i] for i in chosen]).pyramid
+        assert space.pyramid_nbytes([images[i] for i in chosen]) == pyramid.first.nbytes + pyramid.second.nbytes
+
+
 def test_part_kinds_partition_the_salient_points_and_name_their_descriptor_slots():
     records = FeatureSpace()(random_image(64, 64, seed=7))
     texels, edgels = PartKind.TEXEL.mask(records), PartKind.EDGEL.mask(records)

@@ -119,16 +119,17 @@ def shared_records(args, task: Task, jobs: list[dict], device: torch.device) -> 
     """
     if args.ray is not None or (args.workers > 1 and device.type != "cpu"):
         return {}
+    views = list(dict.fromkeys(tuple(indices) for job in jobs
+                               for indices in task.fold(job["fold"])[1 if args.augment else 0:]))
     space = FeatureSpace().to(device)
-    sets: dict[tuple, ImageRecords] = {}
-    for job in jobs:
-        train, test = task.fold(job["fold"])
-        for indices in [test] if args.augment else [train, test]:
-            if tuple(indices) not in sets:
-                sets[tuple(indices)] = _image_set(task, indices, space, not args.quiet).all_records
-    if args.workers > 1 and Path(SHARED_MEMORY).is_dir() and \
-            sum(r.nbytes for r in sets.values()) > shutil.disk_usage(SHARED_MEMORY).free:
-        return {}  # e.g. a container's 64 MB /dev/shm: the workers compute their own, as on Ray
+    free = shutil.disk_usage(SHARED_MEMORY).free if args.workers > 1 and Path(SHARED_MEMORY).is_dir() else None
+    # e.g. a container's 64 MB /dev/shm: the workers compute their own, as on Ray; known from the
+    # images' sizes before any is computed, where the pyramids alone would not fit
+    if free is not None and sum(space.pyramid_nbytes([task.view(i) for i in view]) for view in views) > free:
+        return {}
+    sets = {view: _image_set(task, list(view), space, not args.quiet).all_records for view in views}
+    if free is not None and sum(r.nbytes for r in sets.values()) > free:
+        return {}  # the pyramids fit, their points did not
     return sets
 
 

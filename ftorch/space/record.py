@@ -261,6 +261,18 @@ class FeatureSpace(nn.Module):
         space = self.scale_space(images)
         return ImageRecords.build(space, self.salient(space))
 
+    def _pyramid_layout(self, shapes: Sequence[tuple[int, int]]) -> tuple[int, int, int]:
+        """(height, width, S+3 entries) of the joined pyramid of images of these (H, W) shapes."""
+        height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
+        return height, width, max(self.scale_space.num_levels(*shape) for shape in shapes) + 3
+
+    def pyramid_nbytes(self, images: Sequence[Tensor]) -> int:
+        """Bytes of the pyramid :meth:`records` builds for these grey (H, W) float images, known
+        before building it: a lower bound of the records' ``nbytes`` (points and descriptors add to it)."""
+        height, width, entries = self._pyramid_layout([image.shape[-2:] for image in images])
+        dtype = functools.reduce(torch.promote_types, [image.dtype for image in images])
+        return len(images) * height * width * entries * 5 * dtype.itemsize  # 2 first- and 3 second-order maps
+
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:
         """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
@@ -288,8 +300,7 @@ class FeatureSpace(nn.Module):
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
         # each batch's responses are written straight into the joined pyramid, so that building
         # holds one set of tables, not two
-        height, width = (max(image.shape[d] for image in loaded) for d in (-2, -1))
-        entries = max(self.scale_space.num_levels(*image.shape[-2:]) for image in loaded) + 3
+        height, width, entries = self._pyramid_layout([image.shape[-2:] for image in loaded])
         parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
             space = self.scale_space(torch.stack([loaded[i] for i in idx]))
