@@ -1,13 +1,16 @@
 """Checkpoint files: plain JSON, written atomically, read without executing anything (no pickle).
 
-A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 3, ...}. Floats
+A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 4, ...}. Floats
 are written as Python's shortest exact repr; arrays as zlib-compressed little-endian float32
 where that holds every value exactly (feature values are computed in float32), else float64,
 in base64 blocks of ``ROWS`` rows (a block unchanged since the last checkpoint is not compressed
 again); long texts (feature tables) as xz-compressed UTF-8 in base64: the repeated structure of
 compound features' JSON shrinks 2-3x more with xz at its fastest preset than with zlib, in the same
-time, while float arrays gain about 10% at 3x zlib's time. Version 2 (texts in zlib) still reads:
-a block's codec is told by its magic bytes. So a state
+time, while float arrays gain about 10% at 3x zlib's time. An array that mostly repeats another
+one the reader holds too (the instance list's values are those of the value cache) is written
+relative to it: the XOR of the two arrays' bits, zero where they agree, which compresses to almost
+nothing and restores exactly (version 4). Versions 2 (texts in zlib) and 3 still read: a block's
+codec is told by its magic bytes, and their arrays are absolute. So a state
 survives a round trip bit for bit. Compressed data are inflated only up to the size their
 declared shape allows (``MAX_BYTES`` at most): a small damaged or hostile file cannot blow up. Writing goes to a temporary
 file in the same folder, flushed and fsynced, then renamed over the target: a crash leaves
@@ -30,8 +33,8 @@ import numpy as np
 from .errors import InputError
 
 FORMAT = "ftorch"
-VERSION = 3
-READS = (2, 3)  # versions this ftorch reads: 2 differs only in compressing texts with zlib
+VERSION = 4
+READS = (2, 3, 4)  # versions this ftorch reads: 2 compresses texts with zlib, 3 has no relative arrays
 XZ_MAGIC = b"\xfd7zXZ\x00"
 MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
@@ -71,8 +74,10 @@ def _inflate(text, size: int) -> bytes:
     return raw
 
 
-def encode_array(array: np.ndarray) -> dict:
-    """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes."""
+def encode_array(array: np.ndarray, reference: np.ndarray | None = None) -> dict:
+    """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes;
+    with a ``reference`` of the same shape, the bits of the array XOR those of the reference in that
+    dtype ("relative"): :func:`decode_array` restores it given the same reference."""
     if np.asarray(array).dtype == np.float32:
         data = np.require(array, dtype="<f4", requirements="C")
     else:
@@ -80,13 +85,29 @@ def encode_array(array: np.ndarray) -> dict:
         narrow = data.astype("<f4")
         if np.array_equal(narrow.astype("<f8").view("<i8"), data.view("<i8")):  # bit for bit, NaN included
             data = narrow
+    state = {"shape": list(data.shape), "dtype": data.dtype.str}
+    if reference is not None:
+        data = data.view(_BITS[data.dtype.str]) ^ _reference(reference, data.shape, data.dtype)
+        state["relative"] = True
     rows = data.reshape(len(data), int(np.prod(data.shape[1:]))) if data.ndim else data.reshape(1, 1)
-    return {"shape": list(data.shape), "dtype": data.dtype.str,
-            "blocks": [_compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]}
+    state["blocks"] = [_compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]
+    return state
 
 
-def decode_array(data: dict) -> np.ndarray:
-    """Inverse of :func:`encode_array` (as float64); ValueError where the data are damaged."""
+_BITS = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integers holding each float's bits
+
+
+def _reference(reference: np.ndarray, shape: tuple, dtype: np.dtype) -> np.ndarray:
+    """The bits of ``reference`` in ``dtype`` (rounded the same way when written and read)."""
+    reference = np.asarray(reference)
+    if reference.shape != tuple(shape):
+        raise ValueError(f"a reference of shape {reference.shape} for an array of shape {tuple(shape)}")
+    return np.require(reference, dtype=dtype, requirements="C").view(_BITS[dtype.str])
+
+
+def decode_array(data: dict, reference: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of :func:`encode_array` (as float64; a relative array needs the ``reference`` it was
+    written with); ValueError where the data are damaged."""
     try:
         shape = tuple(int(v) for v in data["shape"])
         dtype = np.dtype({"<f4": "<f4", "<f8": "<f8"}[data["dtype"]])
@@ -101,6 +122,10 @@ def decode_array(data: dict) -> np.ndarray:
             raise ValueError(f"declares {n_rows * row_bytes} bytes, more than the {MAX_BYTES} a checkpoint may hold")
         raw = b"".join(_inflate(b, min(ROWS, n_rows - k * ROWS) * row_bytes) for k, b in enumerate(blocks))
         flat = np.frombuffer(raw, dtype=dtype)
+        if data.get("relative", False) is not False:
+            if data["relative"] is not True or reference is None:
+                raise ValueError("written relative to values that are not given")
+            flat = (flat.view(_BITS[dtype.str]) ^ _reference(reference, shape, dtype).reshape(-1)).view(dtype)
     except (KeyError, TypeError, ValueError, OverflowError, zlib.error, lzma.LZMAError) as err:
         raise ValueError(f"damaged array ({err})") from None
     return flat.reshape(shape).astype(np.float64)

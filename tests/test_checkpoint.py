@@ -22,6 +22,28 @@ def test_arrays_round_trip_exactly_in_float32_where_that_is_exact():
     assert encode_array(wide)["dtype"] == "<f8" and np.array_equal(decode_array(encode_array(wide)), wide, equal_nan=True)
 
 
+def test_an_array_written_relative_to_one_the_reader_holds_restores_exactly_and_shrinks():
+    rng = np.random.default_rng(1)
+    reference = rng.random((300, 40)).astype(np.float32).astype(np.float64)
+    reference[::7, 3] = np.nan
+    values = reference.copy()
+    values[9, 4], values[0, 3], values[1, 1:3] = np.nan, 0.25, np.nan  # where the two differ, NaN either side
+    for array in (values, values + np.eye(300, 40) * 1e-12):  # float32 numbers, and float64 ones
+        packed = encode_array(array, reference)
+        assert packed["relative"] and packed["dtype"] == encode_array(array)["dtype"]
+        assert np.array_equal(decode_array(packed, reference), array, equal_nan=True)
+        assert len(json.dumps(packed)) < len(json.dumps(encode_array(array))) / 10
+    for scalar in (np.array(0.5), np.zeros((0, 3))):
+        assert np.array_equal(decode_array(encode_array(scalar, scalar + 1), scalar + 1), scalar)
+    packed = encode_array(values, reference)
+    with pytest.raises(ValueError, match="relative to values that are not given"):
+        decode_array(packed)
+    with pytest.raises(ValueError, match="a reference of shape"):
+        decode_array(packed, reference[1:])
+    with pytest.raises(ValueError, match="relative to values that are not given"):
+        decode_array({**packed, "relative": "yes"}, reference)
+
+
 def test_large_arrays_go_in_blocks_and_empty_ones_round_trip():
     values = np.arange(3 * ROWS * 2, dtype=np.float64).reshape(3 * ROWS, 2)[: 2 * ROWS + 5]
     packed = encode_array(values)
@@ -101,5 +123,5 @@ def test_a_deeply_nested_or_old_checkpoint_file_gets_one_line(tmp_path):
     with pytest.raises(InputError, match="nested too deeply"):
         load_checkpoint(path, "fold")
     path.write_text(json.dumps({"format": "ftorch", "kind": "fold", "version": 1}))
-    with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads versions 2 to 3"):
+    with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads versions 2 to 4"):
         load_checkpoint(path, "fold")

@@ -63,7 +63,7 @@ def test_fold_learns_its_training_set_and_beats_chance(small_task, tmp_path):
     assert saved.state_dict(training=False) == learner.state_dict(training=False) and not saved.trainable
 
 
-def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path):
+def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path, monkeypatch):
     """Four expert stages; the run is cut after the first cycle of the last, which learns expert features."""
     whole, learner = make_fold(small_task, tmp_path / "whole").run(max_cycles=4, stages=4)
     assert [s["stage"] for s in whole["stages"]] == [0, 1, 2, 3, 4]
@@ -76,11 +76,22 @@ def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         make_fold(small_task, tmp_path / "cut").run(max_cycles=4, stages=4, after_cycle=stop)
-    saved = json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["state"]
-    assert saved["total_cycles"] == cut_at and saved["stage"] == 4 and len(saved["stages"]) == 4
-    resumed, again = make_fold(small_task, tmp_path / "cut").run(max_cycles=4, stages=4, resume=True)  # fresh image sets
-    assert without_timing(resumed) == without_timing(whole)
-    assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
+    saved = json.loads((tmp_path / "cut" / "checkpoint.json").read_text())
+    assert saved["state"]["total_cycles"] == cut_at and saved["state"]["stage"] == 4 and len(saved["state"]["stages"]) == 4
+    assert saved["learner"]["instances"]["values"]["relative"]  # to the value cache, written beside it
+    with monkeypatch.context() as patch:  # as version 3 wrote them: absolute instance values
+        state_dict = DistinctiveFeatureLearner.state_dict
+        patch.setattr(DistinctiveFeatureLearner, "state_dict", lambda self, training=True, table=None, env=None:
+                      state_dict(self, training, table))
+        with pytest.raises(KeyboardInterrupt):
+            make_fold(small_task, tmp_path / "old").run(max_cycles=4, stages=4, after_cycle=stop)
+    old = json.loads((tmp_path / "old" / "checkpoint.json").read_text())
+    assert "relative" not in old["learner"]["instances"]["values"]
+    (tmp_path / "old" / "checkpoint.json").write_text(json.dumps({**old, "version": 3}))
+    for folder in ("cut", "old"):
+        resumed, again = make_fold(small_task, tmp_path / folder).run(max_cycles=4, stages=4, resume=True)  # fresh image sets
+        assert without_timing(resumed) == without_timing(whole)
+        assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
 
 
 def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_path, monkeypatch):

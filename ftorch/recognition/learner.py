@@ -84,6 +84,11 @@ class Presentation(NamedTuple):
     ksd: float | None = None
 
 
+def _cached(env: ImageSet | None, features: list, images: list) -> np.ndarray | None:
+    """``env``'s cached values (images, features), the reference of relative instance values; None without ``env``."""
+    return None if env is None else env.cache.stored(features, images).T
+
+
 def _label(value):
     """Class labels and image ids are stored as JSON scalars: str or int."""
     if isinstance(value, bool) or not isinstance(value, (str, int)):
@@ -355,13 +360,16 @@ class DistinctiveFeatureLearner:
             "prior": net.prior.tolist(), "cpt": [encode_array(net.cpt[f]) for f in net.features],
         } for label, net in self.networks.items()]
 
-    def state_dict(self, training: bool = True, table: FeatureTable | None = None) -> dict:
+    def state_dict(self, training: bool = True, table: FeatureTable | None = None, env: ImageSet | None = None) -> dict:
         """The learner state as JSON-ready data, features referred to by position in a feature table.
 
         ``training=True``: the complete state (instance list, usage, random state), from which
         learning continues exactly; ``False``: what recognition needs (the networks). The table
         is written into the state as "features", unless the caller passes its own ``table``
-        (to store features shared with other state once) and writes it.
+        (to store features shared with other state once) and writes it. ``env``: the image set it
+        learns from, whose value cache the caller writes too; the instance values, which are that
+        cache's values, are then written relative to it (nearly nothing), and :meth:`load_state_dict`
+        needs the same image set, its cache restored.
         """
         own = table is None
         table = FeatureTable() if own else table
@@ -378,16 +386,17 @@ class DistinctiveFeatureLearner:
                 "instances": {"images": [_label(i) for i in instances.images],
                               "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
                               "features": [table.index(f) for f in instances.features],
-                              "values": encode_array(instances.values_table())},
+                              "values": encode_array(instances.values_table(), _cached(env, instances.features, instances.images))},
             })
         if own:
             state["features"] = table.pack()
         return state
 
-    def load_state_dict(self, state: dict, features: list[Feature] | None = None) -> None:
+    def load_state_dict(self, state: dict, features: list[Feature] | None = None, env: ImageSet | None = None) -> None:
         """Restore a state written by :meth:`state_dict` (``features``: the caller's table, where it
-        kept one); ValueError or InputError where it is damaged. A recognition-only state gives a
-        learner that recognizes but refuses to learn."""
+        kept one; ``env``: the image set whose cache its instance values were written relative to);
+        ValueError or InputError where it is damaged. A recognition-only state gives a learner that
+        recognizes but refuses to learn."""
         features = unpack_features(state["features"]) if features is None else features
         at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
         self.n_ex, self.n_fgen = _count(state["n_ex"]), _count(state["n_fgen"])
@@ -424,7 +433,7 @@ class DistinctiveFeatureLearner:
         for image, labels in zip(block["images"], block["labels"]):
             self.instances.add(image, labels)
         columns = [at(i) for i in block["features"]]
-        values = decode_array(block["values"])
+        values = decode_array(block["values"], _cached(env, columns, self.instances.images))
         if values.shape != (len(self.instances), len(columns)):
             raise ValueError(f"instance values of shape {values.shape} for {len(self.instances)} images and {len(columns)} features")
         if not are_stored_values(values):

@@ -59,6 +59,18 @@ class ValueCache:
             block = table[np.ix_(rows, images)]
         return block.astype(np.float64, copy=False)
 
+    def stored(self, features: Sequence[Feature], images: Sequence) -> np.ndarray:
+        """The values held for ``features`` on ``images`` (F, n), in storage precision, NaN where none
+        is (a feature not asked for yet, an image that is not one of the indices); computes nothing."""
+        out = np.full((len(features), len(images)), np.nan, dtype=self.dtype)
+        rows = [(k, self._row[f]) for k, f in enumerate(features) if f in self._row]
+        columns = [(k, i) for k, i in enumerate(images)
+                   if isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < self.images]
+        if rows and columns:
+            (at, row), (to, column) = zip(*rows), zip(*columns)
+            out[np.ix_(at, to)] = self._table.array[np.ix_(row, column)]
+        return out
+
     def table(self) -> FeatureTable:
         """A feature table that starts with this cache's features at their rows (built without
         hashing them: a checkpoint of many thousand features writes them once, cheaply)."""

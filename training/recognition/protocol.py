@@ -211,7 +211,7 @@ class Fold:
         first (it only grows, so its packed blocks are reused from the last checkpoint)."""
         table = self.train.cache.table()
         cache = self.train.cache_state(table)
-        learned = learner.state_dict(table=table)
+        learned = learner.state_dict(table=table, env=self.train)  # instance values relative to the cache
         save_checkpoint(self.checkpoint, FOLD_KIND, {
             "config": self.config.to_dict(), "fold": self.fold, "state": state.to_dict(),
             "order": encode_array(order.get_state().numpy().astype(np.float64)),
@@ -226,9 +226,9 @@ class Fold:
         order = torch.Generator()
         try:
             features = unpack_features(data["features"])
-            learner.load_state_dict(data["learner"], features)
+            self.train.load_cache_state(data["cache"], features)  # first: the learner's instance values refer to it
+            learner.load_state_dict(data["learner"], features, env=self.train)
             order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
-            self.train.load_cache_state(data["cache"], features)
             state = FoldState.from_dict(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
