@@ -125,3 +125,20 @@ def test_a_deeply_nested_or_old_checkpoint_file_gets_one_line(tmp_path):
     path.write_text(json.dumps({"format": "ftorch", "kind": "fold", "version": 1}))
     with pytest.raises(InputError, match="checkpoint version 1, this ftorch reads versions 2 to 4"):
         load_checkpoint(path, "fold")
+
+
+def test_a_table_read_back_packs_its_blocks_as_read(monkeypatch):
+    """A resumed run's first checkpoint reuses the blocks it read instead of compressing them again;
+    a block that grew is packed afresh, and every block unpacks to its features."""
+    features = [Texel([float(i + 1)] + [0.25] * 14) for i in range(CHUNK + 5)]
+    packed = FeatureTable({f: i for i, f in enumerate(features)}).pack()
+    read = unpack_features(json.loads(json.dumps(packed)))  # new objects, as a resumed run has
+    compressed = []
+    monkeypatch.setattr("ftorch.space.features.encode_text", lambda text: compressed.append(text) or encode_text(text))
+    table = FeatureTable({f: i for i, f in enumerate(read)})
+    assert table.pack() == packed
+    assert compressed == []  # nothing compressed again
+    table.index(Texel([0.5] * 15))
+    again = table.pack()
+    assert again["blocks"][0] == packed["blocks"][0] and len(compressed) == 1  # only the grown last block
+    assert unpack_features(again) == [*features, Texel([0.5] * 15)]

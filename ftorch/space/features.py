@@ -294,7 +294,8 @@ class FeatureTable:
     :meth:`index` gives a feature's position (adding it if new); :meth:`pack` writes the table as
     compressed JSON blocks of ``CHUNK`` features; :func:`unpack_features` reads it back. A table
     that grows between checkpoints (the value cache's does) re-packs only its last block: packed
-    blocks are remembered by their features.
+    blocks are remembered by their features, and so are the blocks read, so that the first
+    checkpoint of a resumed run does not compress its whole table again.
     """
 
     # the ids of a block's features -> (those features, the packed block), the most recent 256; an
@@ -321,14 +322,19 @@ class FeatureTable:
         blocks = []
         for start in range(0, len(self.features), CHUNK):
             chunk = tuple(self.features[start : start + CHUNK])
-            key = tuple(map(id, chunk))
-            known = self._packed.get(key)
-            if known is None:
-                known = self._packed[key] = (chunk, encode_text("[" + ",".join(f.to_json() for f in chunk) + "]"))
-                if len(self._packed) > 256:
-                    self._packed.popitem(last=False)
-            blocks.append(known[1])
+            known = self._packed.get(tuple(map(id, chunk)))
+            block = self._remember(chunk, encode_text("[" + ",".join(f.to_json() for f in chunk) + "]")) \
+                if known is None else known[1]
+            blocks.append(block)
         return {"blocks": blocks}
+
+    @classmethod
+    def _remember(cls, chunk: tuple[Feature, ...], block: dict) -> dict:
+        """Remember ``block`` as the packed form of the features ``chunk``; returns it."""
+        cls._packed[tuple(map(id, chunk))] = (chunk, block)
+        if len(cls._packed) > 256:
+            cls._packed.popitem(last=False)
+        return block
 
 
 def unpack_features(data: dict) -> list[Feature]:
@@ -344,7 +350,9 @@ def unpack_features(data: dict) -> list[Feature]:
         if not isinstance(items, list):
             raise ValueError("damaged feature table (not a list)")
         try:
-            features += [Feature.from_dict(d) for d in items]
+            chunk = tuple(Feature.from_dict(d) for d in items)
         except RecursionError:
             raise ValueError("damaged feature table (nested too deeply)") from None
+        FeatureTable._remember(chunk, block)  # a block read is packed already: a resumed run writes it as it is
+        features += chunk
     return features
