@@ -20,6 +20,7 @@ naming the file, a missing, truncated, foreign, other-kind or newer checkpoint.
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import lzma
 import os
@@ -40,17 +41,21 @@ MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
 
 ROWS = 1024  # rows per compressed block of an array
-_blocks: OrderedDict = OrderedDict()  # (raw bytes, xz) -> compressed block, the most recent 256
+SLICE = 1 << 20  # values per slice of the float32 exactness check
+# (BLAKE2b digest of the raw bytes, xz) -> compressed block, the most recent 256: keyed by a digest,
+# not the bytes, so that remembering the block of a large array holds no copy of it
+_blocks: OrderedDict = OrderedDict()
 
 
 def _compress(raw: bytes, xz: bool = False) -> str:
     """Compressed bytes (zlib, or xz at preset 1) in base64; blocks met again (unchanged rows of a
     growing table) are reused."""
-    block = _blocks.get((raw, xz))
+    key = (hashlib.blake2b(raw, digest_size=32).digest(), xz)
+    block = _blocks.get(key)
     if block is None:
         packed = lzma.compress(raw, preset=1) if xz else zlib.compress(raw, 6)
         block = base64.b64encode(packed).decode("ascii")
-        _blocks[(raw, xz)] = block
+        _blocks[key] = block
         if len(_blocks) > 256:
             _blocks.popitem(last=False)
     return block
@@ -83,7 +88,10 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None) -> dict
     else:
         data = np.require(array, dtype="<f8", requirements="C")  # keeps 0-d arrays 0-d
         narrow = data.astype("<f4")
-        if np.array_equal(narrow.astype("<f8").view("<i8"), data.view("<i8")):  # bit for bit, NaN included
+        wide, small = data.reshape(-1).view("<i8"), narrow.reshape(-1)
+        # bit for bit, NaN included; in slices, so that a large array is not widened again whole
+        if all(np.array_equal(small[s : s + SLICE].astype("<f8").view("<i8"), wide[s : s + SLICE])
+               for s in range(0, wide.size, SLICE)):
             data = narrow
     state = {"shape": list(data.shape), "dtype": data.dtype.str}
     if reference is not None:
@@ -98,11 +106,12 @@ _BITS = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integer
 
 
 def _reference(reference: np.ndarray, shape: tuple, dtype: np.dtype) -> np.ndarray:
-    """The bits of ``reference`` in ``dtype`` (rounded the same way when written and read)."""
+    """The bits of ``reference`` in ``dtype`` (rounded the same way when written and read; a view
+    where it is in that dtype already, in any memory order: a checkpoint's instance values are large)."""
     reference = np.asarray(reference)
     if reference.shape != tuple(shape):
         raise ValueError(f"a reference of shape {reference.shape} for an array of shape {tuple(shape)}")
-    return np.require(reference, dtype=dtype, requirements="C").view(_BITS[dtype.str])
+    return reference.astype(dtype, copy=False).view(_BITS[dtype.str])
 
 
 def decode_array(data: dict, reference: np.ndarray | None = None) -> np.ndarray:
@@ -125,7 +134,7 @@ def decode_array(data: dict, reference: np.ndarray | None = None) -> np.ndarray:
         if data.get("relative", False) is not False:
             if data["relative"] is not True or reference is None:
                 raise ValueError("written relative to values that are not given")
-            flat = (flat.view(_BITS[dtype.str]) ^ _reference(reference, shape, dtype).reshape(-1)).view(dtype)
+            flat = (flat.reshape(shape).view(_BITS[dtype.str]) ^ _reference(reference, shape, dtype)).view(dtype)
     except (KeyError, TypeError, ValueError, OverflowError, zlib.error, lzma.LZMAError) as err:
         raise ValueError(f"damaged array ({err})") from None
     return flat.reshape(shape).astype(np.float64)
