@@ -142,3 +142,12 @@ def test_a_table_read_back_packs_its_blocks_as_read(monkeypatch):
     again = table.pack()
     assert again["blocks"][0] == packed["blocks"][0] and len(compressed) == 1  # only the grown last block
     assert unpack_features(again) == [*features, Texel([0.5] * 15)]
+
+
+def test_blocks_are_compressed_once_and_remembered_without_a_copy_of_their_bytes():
+    from ftorch import checkpoint
+    values = np.random.default_rng(2).random((2 * ROWS, 64))
+    first = encode_array(values)
+    again = encode_array(values.copy())
+    assert all(a is b for a, b in zip(again["blocks"], first["blocks"]))  # the same bytes: compressed once
+    assert all(len(digest) == 32 for digest, _ in checkpoint._blocks)  # a digest, not the block's 512 kB
