@@ -108,11 +108,11 @@ def test_instance_list_counts_only_measured_values():
 
 
 def test_growing_table_equals_a_table_rebuilt_at_every_step():
-    """Random appends of rows and columns and column removals, against numpy's vstack/hstack."""
+    """Random appends of rows and columns and row and column removals, against numpy's vstack/hstack."""
     rng = np.random.default_rng(0)
     table, reference = GrowingTable(fill=-1.0), np.zeros((0, 0))
-    for _ in range(300):
-        step = rng.integers(3)
+    for _ in range(400):
+        step = rng.integers(4)
         if step == 0:
             rows = rng.normal(size=(int(rng.integers(1, 4)), reference.shape[1]))
             table.add_rows(rows)
@@ -121,10 +121,14 @@ def test_growing_table_equals_a_table_rebuilt_at_every_step():
             columns = rng.normal(size=(reference.shape[0], int(rng.integers(1, 4))))
             table.add_columns(columns)
             reference = np.hstack([reference, columns])
-        else:
+        elif step == 2:
             keep = rng.random(reference.shape[1]) < 0.8
             table.keep_columns(keep)
             reference = reference[:, keep]
+        else:
+            keep = rng.random(reference.shape[0]) < 0.8
+            table.keep_rows(keep)
+            reference = reference[keep]
         assert np.array_equal(table.array, reference)
     assert table.array.shape == reference.shape and reference.size > 0
 

@@ -1,6 +1,6 @@
 """Instance tables (4.4.1, 6.4): the learners count every probability from them.
 
-:class:`InstanceList` is the recognition learner's: one row per distinct image (an image's
+:class:`InstanceList` is the recognition learner's: one instance per distinct image (an image's
 feature values never change, so presenting it again adds no information), holding its true
 classes and the values of the features measured on it so far; values not measured are NaN and
 are left out of every count. Both it and the grasp learner's tables grow in rows and columns
@@ -56,6 +56,14 @@ class GrowingTable:
         self._store[: self.rows, self.columns: self.columns + block.shape[1]] = block
         self.columns += block.shape[1]
 
+    def keep_rows(self, keep) -> None:
+        """Keep only the rows ``keep`` (indices or a boolean mask), in their order; only the rows
+        vacated at the end are refilled."""
+        kept = self.array[keep]
+        self._store[: len(kept), : self.columns] = kept
+        self._store[len(kept) : self.rows, : self.columns] = self.fill
+        self.rows = len(kept)
+
     def keep_columns(self, keep) -> None:
         """Keep only the columns ``keep`` (indices or a boolean mask), in their order."""
         kept = self.array[:, keep]
@@ -65,13 +73,18 @@ class GrowingTable:
 
 
 class InstanceList:
+    """The instances (images with their true classes) and the values of the features measured on
+    them. Stored feature by feature, (features, instances): the counts read the values of a few
+    features over all instances (a feature's values are one contiguous row) and discarding
+    features drops rows; :meth:`values_table` gives the (instances, features) table."""
+
     def __init__(self):
         self.images: list[Hashable] = []
         self.labels: list[frozenset] = []
         self.features: list[Hashable] = []
-        self._row: dict[Hashable, int] = {}
-        self._column: dict[Hashable, int] = {}
-        self._table = GrowingTable()  # (instances, features), NaN where not measured
+        self._image: dict[Hashable, int] = {}  # image -> its column of the table
+        self._feature: dict[Hashable, int] = {}  # feature -> its row of the table
+        self._table = GrowingTable()  # (features, instances), NaN where not measured
 
     @property
     def _values(self) -> np.ndarray:
@@ -81,54 +94,59 @@ class InstanceList:
         return len(self.images)
 
     def add(self, image: Hashable, labels: Iterable[Hashable]) -> int:
-        """Row of ``image``, added with its true classes if new."""
-        if image in self._row:
-            return self._row[image]
-        self._table.add_rows(np.full((1, len(self.features)), np.nan))
-        self._row[image] = len(self.images)
+        """Index of ``image`` (its column), added with its true classes if new."""
+        if image in self._image:
+            return self._image[image]
+        self._table.add_columns(np.full((len(self.features), 1), np.nan))
+        self._image[image] = len(self.images)
         self.images.append(image)
         self.labels.append(frozenset(labels))
-        return self._row[image]
+        return self._image[image]
 
-    def column(self, feature: Hashable) -> int:
-        if feature not in self._column:
-            self._table.add_columns(np.full((len(self.images), 1), np.nan))
-            self._column[feature] = len(self.features)
+    def _feature_row(self, feature: Hashable) -> int:
+        if feature not in self._feature:
+            self._table.add_rows(np.full((1, len(self.images)), np.nan))
+            self._feature[feature] = len(self.features)
             self.features.append(feature)
-        return self._column[feature]
+        return self._feature[feature]
 
     def set(self, image: Hashable, feature: Hashable, value: float) -> None:
-        column = self.column(feature)  # may widen the array: look it up first
-        self._values[self._row[image], column] = value
+        row = self._feature_row(feature)  # may grow the array: look it up first
+        self._values[row, self._image[image]] = value
 
     def set_block(self, images: list, features: list, values: np.ndarray) -> None:
         """Set the values (len(features), len(images)) of several features on several images at once."""
-        columns = [self.column(f) for f in features]  # may widen the array: look them up first
-        rows = [self._row[i] for i in images]
-        self._values[np.ix_(rows, columns)] = np.asarray(values, dtype=float).T
+        rows = [self._feature_row(f) for f in features]  # may grow the array: look them up first
+        columns = [self._image[i] for i in images]
+        self._values[np.ix_(rows, columns)] = np.asarray(values, dtype=float)
 
     def get(self, image: Hashable, feature: Hashable) -> float:
         """Value of ``feature`` on ``image``, NaN if not measured (or unknown)."""
-        row, column = self._row.get(image), self._column.get(feature)
+        row, column = self._feature.get(feature), self._image.get(image)
         return np.nan if row is None or column is None else float(self._values[row, column])
 
     def values(self, feature: Hashable) -> np.ndarray:
         """Values of one feature over all instances (n,), NaN where not measured."""
-        column = self._column.get(feature)
-        return np.full(len(self), np.nan) if column is None else self._values[:, column].copy()
+        row = self._feature.get(feature)
+        return np.full(len(self), np.nan) if row is None else self._values[row].copy()
 
     def block(self, features: list) -> np.ndarray:
         """Values of several features over all instances (F, n), NaN where not measured."""
         out = np.full((len(features), len(self)), np.nan)
-        known = [(i, self._column[f]) for i, f in enumerate(features) if f in self._column]
+        known = [(i, self._feature[f]) for i, f in enumerate(features) if f in self._feature]
         if known:
-            rows, columns = zip(*known)
-            out[list(rows)] = self._values[:, list(columns)].T
+            at, rows = zip(*known)
+            out[list(at)] = self._values[list(rows)]
         return out
 
     def values_table(self) -> np.ndarray:
-        """All values (instances, features), NaN where not measured."""
-        return self._values.copy()
+        """All values (instances, features), NaN where not measured: the stored table transposed,
+        copied 128 features at a time (4x faster than one transposed copy at 200 x 108,229)."""
+        values = self._values
+        out = np.empty(values.shape[::-1])
+        for s in range(0, len(values), 128):
+            out[:, s : s + 128] = values[s : s + 128].T
+        return out
 
     def has(self, label: Hashable) -> np.ndarray:
         """(n,) bool: instances whose true classes include ``label``."""
@@ -139,12 +157,12 @@ class InstanceList:
         return np.array([bool(labels & own) for own in self.labels], dtype=bool)
 
     def forget(self, features: Iterable[Hashable]) -> None:
-        """Drop features' columns (discarded features); unknown ones are ignored."""
-        columns = [self._column[f] for f in features if f in self._column]
-        if not columns:
+        """Drop features' rows (discarded features); unknown ones are ignored."""
+        rows = [self._feature[f] for f in features if f in self._feature]
+        if not rows:
             return
         keep = np.ones(len(self.features), dtype=bool)
-        keep[columns] = False
-        self._table.keep_columns(keep)
+        keep[rows] = False
+        self._table.keep_rows(keep)
         self.features = [f for f, k in zip(self.features, keep) if k]
-        self._column = {f: i for i, f in enumerate(self.features)}
+        self._feature = {f: i for i, f in enumerate(self.features)}
