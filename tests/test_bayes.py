@@ -112,6 +112,37 @@ def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the
     assert net.evaluate(longer)[0] == net.infer(longer)[0] and len(net.evaluate(longer)[1]) == 8
 
 
+def test_large_groups_remember_contractions_by_their_own_evidence(monkeypatch):
+    """A large group's contractions depend only on its own nodes' evidence: evidence elsewhere
+    reuses them, the results equal contracting afresh bit for bit, and a change of the network
+    forgets them."""
+    rng = np.random.default_rng(3)
+    net = ClassNetwork("chain")
+    for i in range(17):
+        net.add_feature(i, parents=[i - 1] if i else [])
+    for i in range(17, 20):
+        net.add_feature(i)  # arc-free nodes outside the group
+    for key in net.features:
+        p = rng.uniform(0.05, 0.95, size=net.cpt[key].shape[:-1])
+        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
+    group = net.compiled().groups[0]
+    assert group.table is None and len(net.compiled().groups) == 1
+    calls = []
+    afresh = ClassNetwork._contract_afresh
+    monkeypatch.setattr(ClassNetwork, "_contract_afresh", lambda self, *a: calls.append(1) or afresh(self, *a))
+    inside = np.where(rng.random(17) < 0.3, rng.integers(0, 2, 17), -1)
+    states = [np.concatenate([inside, outside]) for outside in ([-1, -1, -1], [1, -1, -1], [1, 0, -1], [1, 0, 1])]
+    results = [net.infer(state) for state in states]
+    open_nodes = int((inside < 0).sum())
+    assert len(calls) == 1 + open_nodes  # the likelihood and one query per open node, once for all four states
+    for state, (posterior, info) in zip(states, results):
+        group.contracted.clear()
+        fresh = net.infer(state)
+        assert posterior == fresh[0] and np.array_equal(info, fresh[1])
+    net.set_cpt(0, np.full_like(net.cpt[0], 0.5))
+    assert net.compiled().groups[0].contracted == {}
+
+
 def test_mutual_information_vanishes_for_observed_or_certain_classes():
     rng = np.random.default_rng(1)
     net = random_network(rng, 4)

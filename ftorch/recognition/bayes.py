@@ -75,10 +75,12 @@ def compound_arcs(feature: Feature, present) -> tuple[list, list]:
 
 
 class _Group:
-    """A connected component of feature arcs: node positions, and its table or None (einsum)."""
+    """A connected component of feature arcs: node positions, and its table or None (einsum);
+    ``contracted``: einsum results by the group's own evidence and query (:meth:`ClassNetwork._contract`)."""
 
     def __init__(self, network: "ClassNetwork", keys: list):
         self.keys = keys
+        self.contracted: dict[tuple, np.ndarray] = {}
         self.positions = np.array([network.features.index(k) for k in keys], dtype=np.int64)
         m = len(keys)
         self.table = None
@@ -100,7 +102,7 @@ class _Group:
         return (self.codes & self.weights[observed].sum()) == (self.weights * (own > 0)).sum()
 
 
-MEMO_LIMIT = 4096  # evidence states remembered per compiled network
+MEMO_LIMIT = 4096  # evidence states remembered per compiled network, and per large group
 
 
 class _Compiled:
@@ -341,7 +343,21 @@ class ClassNetwork:
         return weight, likes, masks
 
     def _contract(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
-        """P(e_group | C) (2,), or P(e_group, query | C) (2, 2), of a large group by einsum."""
+        """P(e_group | C) (2,), or P(e_group, query | C) (2, 2), of a large group by einsum.
+
+        It depends only on the evidence of the group's own nodes, so it is remembered by that
+        (``group.contracted``, as the network remembers whole states): a recognition observes one
+        node at a time, mostly outside any one group, and the evidence states of the whole network
+        it meets differ where a large group's do not. The returned array must not be modified."""
+        key = (state[group.positions].tobytes(), query)
+        if key not in group.contracted:
+            if len(group.contracted) >= MEMO_LIMIT:
+                group.contracted.clear()
+            group.contracted[key] = self._contract_afresh(group, state, query)
+        return group.contracted[key]
+
+    def _contract_afresh(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
+        """:meth:`_contract` computed: variable elimination over the ancestors of evidence and query."""
         evidence = {k: int(state[i]) for k, i in zip(group.keys, group.positions) if state[i] >= 0}
         todo, relevant = [*evidence, *([query] if query is not None else [])], set()
         while todo:  # ancestors of evidence and query; other nodes are barren and sum to one
