@@ -105,6 +105,15 @@ class _Group:
 MEMO_LIMIT = 4096  # evidence states remembered per compiled network, and per large group
 
 
+def _remembered(memo: dict, key, compute):
+    """``memo[key]``, computed by ``compute()`` where missing; a full memo is emptied first."""
+    if key not in memo:
+        if len(memo) >= MEMO_LIMIT:
+            memo.clear()
+        memo[key] = compute()
+    return memo[key]
+
+
 class _Compiled:
     """Arc-free nodes stacked for the closed form; linked groups compiled (see module doc); the
     results of :meth:`ClassNetwork.evaluate` by evidence state (``memo``)."""
@@ -349,12 +358,8 @@ class ClassNetwork:
         (``group.contracted``, as the network remembers whole states): a recognition observes one
         node at a time, mostly outside any one group, and the evidence states of the whole network
         it meets differ where a large group's do not. The returned array must not be modified."""
-        key = (state[group.positions].tobytes(), query)
-        if key not in group.contracted:
-            if len(group.contracted) >= MEMO_LIMIT:
-                group.contracted.clear()
-            group.contracted[key] = self._contract_afresh(group, state, query)
-        return group.contracted[key]
+        return _remembered(group.contracted, (state[group.positions].tobytes(), query),
+                           lambda: self._contract_afresh(group, state, query))
 
     def _contract_afresh(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
         """:meth:`_contract` computed: variable elimination over the ancestors of evidence and query."""
@@ -385,13 +390,7 @@ class ClassNetwork:
         Results are remembered per evidence state until the prior or a CPT changes (recognition
         meets the same states again and again); the returned array must not be modified.
         """
-        c = self.compiled()
-        key = state.tobytes()
-        if key not in c.memo:
-            if len(c.memo) >= MEMO_LIMIT:
-                c.memo.clear()
-            c.memo[key] = self.infer(state)
-        return c.memo[key]
+        return _remembered(self.compiled().memo, state.tobytes(), lambda: self.infer(state))
 
     def infer(self, state: np.ndarray) -> tuple[float, np.ndarray]:
         """:meth:`evaluate` computed afresh: the exact factorised inference of the module docstring."""
