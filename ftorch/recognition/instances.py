@@ -65,11 +65,12 @@ class GrowingTable:
         self.rows = len(kept)
 
     def keep_columns(self, keep) -> None:
-        """Keep only the columns ``keep`` (indices or a boolean mask), in their order."""
+        """Keep only the columns ``keep`` (indices or a boolean mask), in their order; only the
+        columns vacated at the end are refilled."""
         kept = self.array[:, keep]
-        self._store[: self.rows, : self.columns] = self.fill
+        self._store[: self.rows, : kept.shape[1]] = kept
+        self._store[: self.rows, kept.shape[1] : self.columns] = self.fill
         self.columns = kept.shape[1]
-        self._store[: self.rows, : self.columns] = kept
 
 
 class InstanceList:
