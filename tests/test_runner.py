@@ -5,7 +5,9 @@ import subprocess
 import sys
 
 import cv2
+import numpy as np
 
+from ftorch.recognition.bayes import ClassNetwork
 from training import bench, run
 
 
@@ -72,3 +74,9 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
     report = json.loads(target.read_text())
     assert report["evaluations_per_s"] > 0 and report["ratio_vs_pgmpy"] > 0 and report["ratio_vs_einsum"] > 0
     assert report["max_difference_vs_einsum"] < 1e-9 and report["max_difference_vs_pgmpy"] < 1e-9
+    large = report["large_group"]
+    assert large["group"] > ClassNetwork.TABLE_LIMIT and large["evaluations"] > large["recognitions"] > 0
+    assert large["ratio_vs_without_memory"] > 0 and large["max_difference_vs_without_memory"] == 0  # the same sums
+    baseline = bench.learned_like_network(np.random.default_rng(0), table_limit=0, kind=bench._Unremembered)
+    baseline.evaluate(np.full(len(baseline.features), -1))
+    assert all(group.table is None and not group.contracted for group in baseline.compiled().groups)  # a true baseline
