@@ -192,6 +192,7 @@ def test_grasp_command_writes_report_figures_and_events(tmp_path, capsys):
     assert set(report["poor_grasp_fraction"]) >= {"haptic", "cued"}
     assert set(report["online"]) == {"offline", "online"} and [f["mode"] for f in report["folds"]] == ["offline", "online"]
     assert all((out / name).is_file() for name in ("errors.png", "grasps.png", "fold1_features.png", "report.md"))
+    assert f"Device cpu ({report['machine']['cpu']}, {report['machine']['cpu_kernels']} kernels" in (out / "report.md").read_text()
     events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"scalars": 0, "histograms": 0, "images": 0})
     events.Reload()
     fold = report["folds"][0]

@@ -9,6 +9,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+import torch
 from scipy import stats
 from pgmpy.readwrite import BIFReader
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -153,13 +154,18 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     texts = [re.sub(r'"seconds": [0-9.e+-]+', '"seconds": _', (tmp_path / x / "report.json").read_text()) for x in "ab"]
     assert texts[0] == texts[1]  # byte-identical but for the timings
     a = json.loads((tmp_path / "a" / "report.json").read_text())
-    assert {"task", "classes", "seed", "device", "seconds", "folds", "average"} <= set(a)
+    assert {"task", "classes", "seed", "device", "machine", "seconds", "folds", "average"} <= set(a)
+    # the report names what fixes its last bits besides the seed: processor, CPU kernels, versions
+    assert a["machine"]["cpu_kernels"] == torch.backends.cpu.get_cpu_capability()
+    assert a["machine"]["torch"] == torch.__version__ and a["machine"]["numpy"] == np.__version__
+    assert "gpu" not in a["machine"] and a["machine"]["cpu"]
     stage = a["folds"][0]["stages"][0]
     assert {"stage", "t_ksd", "cycles", "presentations", "train_learned", "test", "features", "seconds"} <= set(stage)
     assert set(stage["test"]) == {"accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant"}
     assert set(stage["features"]) == {"bn", "different", "queried", "sampled"}
     assert set(a["average"]) == {"stage0", "final"} and set(a["average"]["final"]) == {"test", "features"}
     markdown = (tmp_path / "a" / "report.md").read_text()
+    assert f"device cpu ({a['machine']['cpu']}, {a['machine']['cpu_kernels']} kernels; torch {torch.__version__}" in markdown
     assert "| task | cls. | fold | acc." in markdown and "amb. | cnf. | ign. | # feats. BN |" in markdown
     for figure in ("fold1/features.png", "fold1/con6_features.png"):
         assert figure in markdown and cv2.imread(str(tmp_path / "a" / figure)) is not None

@@ -46,7 +46,7 @@ from training.data.augment import augment, overview as augmented_overview
 from training.cli.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.data.builtin import builtin_scene
 from training.data.datasets import Task, load_task
-from training.cli.devices import resolve_device
+from training.cli.devices import described, machine, resolve_device
 from training.cli.outputs import run_folder, writable_folder
 from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
@@ -346,7 +346,8 @@ def recognize_command(args, incremental: bool = False) -> int:
         if incremental and all(len(r["added"]) > 1 for r in runs):
             seeds["growth"] = growth_over_seeds(runs, seeds["seeds"])
     seconds = time.perf_counter() - start
-    report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), seconds, folds, seeds)
+    report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), machine(device), seconds,
+                          folds, seeds)
     if args.peers:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
     write_json(out / "report.json", report)
@@ -434,10 +435,12 @@ def robustness_command(args) -> int:
         results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
     result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
               "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
-              "average": average_robustness(results), "seconds": time.perf_counter() - start}
+              "average": average_robustness(results), "machine": machine(device),
+              "seconds": time.perf_counter() - start}
     write_json(out / "robustness.json", result)
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
-             f"{result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the ignorant share (def. 4.5), "
+             f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the "
+             "ignorant share (def. 4.5), "
              "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
              "the clean view's.", "", *robustness_table(result), "",
              *[f"![fold {k}](fold{k}/overview.png)" for k in folds], ""]

@@ -15,7 +15,7 @@ from ftorch.errors import InputError
 from ftorch.grasp.learner import FINGER_CHOICES, MU0_CAP, GraspLearner
 from training.cli.arguments import MAX_SEED, at_least, number, seed
 from training.plots import figure_rgb
-from training.cli.devices import resolve_device
+from training.cli.devices import machine, resolve_device
 from training.cli.outputs import run_folder
 from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
 from training.recognition.report import write_json
@@ -161,7 +161,8 @@ def seed_task(job: dict) -> dict:
                                                          f"{args.experiment}, seed {seed}: probes and mu_0, haptic only vs "
                                                          "cued (figures 6.14, 6.17)")))
     figures = ["errors.png", "grasps.png", *figures]
-    report = {"config": settings, "device": str(device), "seconds": time.perf_counter() - start, **results(offline)}
+    report = {"config": settings, "device": str(device), "machine": machine(device),
+              "seconds": time.perf_counter() - start, **results(offline)}
     if args.online:
         report["online"] = {mode: results(evaluations[mode]) for mode in modes}
     report["folds"] = folds

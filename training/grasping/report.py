@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from ftorch.checkpoint import write_text
+from training.cli.devices import described
 from ftorch.grasp.learner import MU0_CAP
 
 from .experiment import POOR_MU0
@@ -126,8 +127,9 @@ def _block(title: str, res: dict) -> list[str]:
 def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     config = report["config"]
     lines = [f"# Grasp experiment `{config['experiment']}` (chapter 6)", "",
-             f"Device {report['device']}, {report['seconds']:.1f} s, seed {config['seed']}, {config['pool']} simulated grasps "
-             f"per category, {config['best']} training grasps per category and fold, t_dtheta {config['t_dtheta_deg']} deg.",
+             f"Device {report['device']} ({described(report['machine'])}), {report['seconds']:.1f} s, "
+             f"seed {config['seed']}, {config['pool']} simulated grasps per category, {config['best']} training grasps "
+             f"per category and fold, t_dtheta {config['t_dtheta_deg']} deg.",
              "", f"Thesis: {THESIS[config['experiment']]}.", "", *_block("Results (both folds pooled)", report)]
     if "online" in report:
         lines += ["## Off-line vs on-line learning on the same objects", ""]

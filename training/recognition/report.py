@@ -10,6 +10,7 @@ import numpy as np
 from scipy import stats
 
 from ftorch.checkpoint import write_text
+from training.cli.devices import described
 
 from .protocol import OUTCOMES
 
@@ -46,9 +47,10 @@ def average(folds: list[dict], which: int) -> dict:
             for block in ("test", "features")}
 
 
-def build_report(config: dict, device: str, seconds: float, folds: list[dict], seeds: dict | None = None) -> dict:
+def build_report(config: dict, device: str, machine: dict, seconds: float, folds: list[dict],
+                 seeds: dict | None = None) -> dict:
     report = {"task": config["task"], "classes": config["classes"], "seed": config["seed"], "device": device,
-              "seconds": seconds, "config": config, "folds": folds,
+              "machine": machine, "seconds": seconds, "config": config, "folds": folds,
               "average": {"stage0": average(folds, 0), "final": average(folds, -1)}}
     if seeds is not None:
         report["seeds"] = seeds
@@ -261,7 +263,8 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     classes = report["classes"]
     incremental = report["config"].get("incremental")
     lines = [f"# Recognition report: {report['task']}{' (incremental, alg. 5.4)' if incremental else ''}", "",
-             f"{len(classes)} classes, seed {report['seed']}, device {report['device']}, {report['seconds']:.1f} s.", "",
+             f"{len(classes)} classes, seed {report['seed']}, device {report['device']} "
+             f"({described(report['machine'])}), {report['seconds']:.1f} s.", "",
              COLUMNS, ""]
     expert = any(len(f["stages"]) > 1 for f in report["folds"])
     if not incremental:
