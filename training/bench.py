@@ -197,7 +197,7 @@ def large_group_network(rng: np.random.Generator, kind: type = ClassNetwork, gro
                         singles: int = 10) -> ClassNetwork:
     """``group`` linked nodes, each g_i a compound over g_(i-1) and g_(i-2): one group beyond
     ``TABLE_LIMIT``, contracted by einsum; and ``singles`` arc-free nodes. The largest networks of
-    COIL-inc 20 look like this (groups of 17 and 21 nodes, 29 nodes per network)."""
+    COIL-inc 20 look like this (linked groups of 17 and 21 nodes; 29 nodes per network on average)."""
     net = kind("bench-large")
     for i in range(group):
         net.add_feature(f"g{i}", children=[f"g{j}" for j in (i - 1, i - 2) if j >= 0])
@@ -215,8 +215,8 @@ def _random_cpts(net: ClassNetwork, rng: np.random.Generator) -> ClassNetwork:
 
 
 class _Unremembered(ClassNetwork):
-    """The baseline of the large-group case: every einsum contraction computed afresh, as before
-    large groups remembered them (5534f5e)."""
+    """The einsum baselines: every contraction computed afresh, as before large groups remembered
+    them (5534f5e)."""
 
     _contract = ClassNetwork._contract_afresh
 
