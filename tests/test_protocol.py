@@ -22,7 +22,7 @@ from training import run
 from training.plots import figure_rgb, fold_curves_figure
 from training.data.datasets import Task, plym_task
 from training.recognition.protocol import Fold, FoldState, RunConfig, next_target
-from training.recognition.report import growth, growth_over_seeds, seed_study
+from training.recognition.report import growth, growth_over_seeds, seed_study, write_markdown
 
 CONFIG = RunConfig("plym4", seed=0, n_ex=5, n_fgen=10)
 
@@ -159,6 +159,7 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     assert a["machine"]["cpu_kernels"] == torch.backends.cpu.get_cpu_capability()
     assert a["machine"]["torch"] == torch.__version__ and a["machine"]["numpy"] == np.__version__
     assert "gpu" not in a["machine"] and a["machine"]["cpu"]
+    assert a["folds"][0]["machine"] == a["machine"]  # where the fold trained: here, the runner's machine
     stage = a["folds"][0]["stages"][0]
     assert {"stage", "t_ksd", "cycles", "presentations", "train_learned", "test", "features", "seconds"} <= set(stage)
     assert set(stage["test"]) == {"accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant"}
@@ -166,6 +167,10 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     assert set(a["average"]) == {"stage0", "final"} and set(a["average"]["final"]) == {"test", "features"}
     markdown = (tmp_path / "a" / "report.md").read_text()
     assert f"device cpu ({a['machine']['cpu']}, {a['machine']['cpu_kernels']} kernels; torch {torch.__version__}" in markdown
+    assert "other machines" not in markdown
+    a["folds"][0]["machine"] = {**a["machine"], "cpu": "Another CPU"}  # as a Ray node of another kind would report
+    write_markdown(tmp_path / "elsewhere.md", a, [])
+    assert "Folds trained on other machines: fold 1 on Another CPU, " in (tmp_path / "elsewhere.md").read_text()
     assert "| task | cls. | fold | acc." in markdown and "amb. | cnf. | ign. | # feats. BN |" in markdown
     for figure in ("fold1/features.png", "fold1/con6_features.png"):
         assert figure in markdown and cv2.imread(str(tmp_path / "a" / figure)) is not None

@@ -220,7 +220,7 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     again = json.loads((tmp_path / "b" / "robustness.json").read_text())
     assert again["average"] == result["average"]  # same seed, same report
-    assert result["machine"] == report["machine"]  # the machine its learners were trained on
+    assert result["machine"] == report["machine"]  # run on the machine that trained its learners
     assert f"{result['machine']['cpu_kernels']} kernels" in (tmp_path / "a" / "robustness.md").read_text()
     assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "clean", "--quiet", "--device", "cpu",
                      "--test-information", "0.9", "--out", str(tmp_path / "c")]) == 0

@@ -285,7 +285,8 @@ def fold_task(job: dict) -> dict:
     class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
     ``job['records']``: the view sets' records where computed before (:func:`shared_records`); where
     none are, those this process computed for an earlier task (:func:`_loaded`).
-    Returns the fold's report entry and its figures; picklable, for local processes and Ray."""
+    Returns the fold's report entry, with the machine it trained on (a Ray node may differ from the
+    runner's), and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
     device = resolve_device(args.device)
     task, own = _loaded(args, device)
@@ -297,7 +298,7 @@ def fold_task(job: dict) -> dict:
     (fold.folder / "networks").mkdir(exist_ok=True)
     for label, net in learner.networks.items():
         write_text(fold.folder / "networks" / f"{label}.bif", net.to_bif())
-    return {"entry": entry, "figures": figures}
+    return {"entry": {**entry, "machine": machine(device)}, "figures": figures}
 
 
 def recognize_command(args, incremental: bool = False) -> int:
