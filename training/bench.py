@@ -207,6 +207,7 @@ def large_group_network(rng: np.random.Generator, kind: type = ClassNetwork, gro
 
 
 def _random_cpts(net: ClassNetwork, rng: np.random.Generator) -> ClassNetwork:
+    """``net`` with every CPT entry drawn from U(0.02, 0.98) and the prior (0.7, 0.3)."""
     for key in net.features:
         p = rng.uniform(0.02, 0.98, size=(2,) * (len(net.parents[key]) + 1))
         net.set_cpt(key, np.stack([1 - p, p], axis=-1))
