@@ -143,6 +143,43 @@ def test_large_groups_remember_contractions_by_their_own_evidence(monkeypatch):
     assert net.compiled().groups[0].contracted == {}
 
 
+def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch):
+    """A compiled group's likelihood and open-node tables depend only on its own nodes' evidence:
+    evidence elsewhere reuses them, the results equal computing them afresh bit for bit and agree
+    with pgmpy, and a change of the network forgets them."""
+    from ftorch.recognition import bayes
+
+    rng = np.random.default_rng(4)
+    net = ClassNetwork("chain")
+    for i in range(4):
+        net.add_feature(i, parents=[i - 1] if i else [])
+    for i in range(4, 7):
+        net.add_feature(i)  # arc-free nodes outside the group
+    for key in net.features:
+        p = rng.uniform(0.05, 0.95, size=net.cpt[key].shape[:-1])
+        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
+    group = net.compiled().groups[0]
+    assert group.table is not None and len(net.compiled().groups) == 1
+    calls = []
+    afresh = bayes._Group._evidence
+    monkeypatch.setattr(bayes._Group, "_evidence", lambda self, own: calls.append(1) or afresh(self, own))
+    inside = np.array([1, -1, 0, -1])
+    states = [np.concatenate([inside, outside]) for outside in ([-1, -1, -1], [1, -1, -1], [1, 0, -1], [1, 0, 1])]
+    results = [net.infer(state) for state in states]
+    assert len(calls) == 1  # once for all four states
+    for state, (posterior, info) in zip(states, results):
+        group.given.clear()
+        fresh = net.infer(state)
+        assert posterior == fresh[0] and np.array_equal(info, fresh[1])
+        evidence = {k: int(v) for k, v in zip(net.features, state) if v >= 0}
+        np.testing.assert_allclose(posterior, pgmpy_query(net, [CLASS], evidence)[1], atol=1e-12)
+        for i in np.flatnonzero(state < 0):
+            expected = information_from(pgmpy_query(net, [CLASS, net.features[i]], evidence))
+            assert info[i] == pytest.approx(expected, abs=1e-12)
+    net.set_cpt(0, np.full_like(net.cpt[0], 0.5))
+    assert net.compiled().groups[0].given == {}
+
+
 def test_mutual_information_vanishes_for_observed_or_certain_classes():
     rng = np.random.default_rng(1)
     net = random_network(rng, 4)

@@ -76,11 +76,13 @@ def compound_arcs(feature: Feature, present) -> tuple[list, list]:
 
 class _Group:
     """A connected component of feature arcs: node positions, and its table or None (einsum);
-    ``contracted``: einsum results by the group's own evidence and query (:meth:`ClassNetwork._contract`)."""
+    ``contracted``: einsum results by the group's own evidence and query (:meth:`ClassNetwork._contract`);
+    ``given``: a compiled group's likelihood and open-node tables by its own evidence (:meth:`evidence`)."""
 
     def __init__(self, network: "ClassNetwork", keys: list):
         self.keys = keys
         self.contracted: dict[tuple, np.ndarray] = {}
+        self.given: dict[bytes, tuple] = {}
         self.positions = np.array([network.features.index(k) for k in keys], dtype=np.int64)
         m = len(keys)
         self.table = None
@@ -95,11 +97,25 @@ class _Group:
                 table = table * network.cpt[key][(slice(None), *index)]
             self.table = table
 
-    def mask(self, state: np.ndarray) -> np.ndarray:
-        """(2^m,) configurations that agree with the evidence state of the group's nodes."""
+    def evidence(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A compiled group under the evidence ``state`` holds for its own nodes: P(e_group | C) (2,),
+        its open nodes (k,) (positions in the group) and P(F_j = f, e_group | C) for each open node
+        j (k, 2, 2), indexed [j, C, f]. They depend on nothing else, so they are remembered by that
+        evidence (``given``), as the network remembers whole states; the arrays must not be modified."""
         own = state[self.positions]
+        return _remembered(self.given, own.tobytes(), lambda: self._evidence(own))
+
+    def _evidence(self, own: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         observed = own >= 0
-        return (self.codes & self.weights[observed].sum()) == (self.weights * (own > 0)).sum()
+        mask = (self.codes & self.weights[observed].sum()) == (self.weights * (own > 0)).sum()  # agreeing configurations
+        likelihood = self.table @ mask
+        open_nodes = np.flatnonzero(own < 0)
+        present = (self.table * mask) @ self.bits[:, open_nodes]  # P(F_j = 1, e_g | C) (2, k)
+        # laid out (C, F_j, F) and viewed as (F_j, C, F): information sums each table in the
+        # order its layout gives, so this layout is part of the result's last bit
+        both = np.empty((2, len(open_nodes), 2))
+        both[:, :, 0], both[:, :, 1] = likelihood[:, None] - present, present
+        return likelihood, open_nodes, both.transpose(1, 0, 2)
 
 
 MEMO_LIMIT = 4096  # evidence states remembered per compiled network, and per large group
@@ -339,17 +355,17 @@ class ClassNetwork:
 
     def _factors(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
         """(P(C) prod_singles P(e_i | C)) (2,), each group's likelihood P(e_group | C) (G, 2) and
-        each compiled group's evidence mask (None for a group contracted by einsum)."""
+        each compiled group's :meth:`_Group.evidence` (None for a group contracted by einsum)."""
         c = self.compiled()
         weight = self.prior
         observed = state[c.singles] >= 0
         if observed.any():
             weight = weight * c.single_cpt[observed, :, state[c.singles[observed]]].prod(0)
         likes = np.ones((len(c.groups), 2))
-        masks = [group.mask(state) if group.table is not None else None for group in c.groups]
-        for g, (group, mask) in enumerate(zip(c.groups, masks)):
-            likes[g] = group.table @ mask if mask is not None else self._contract(group, state)
-        return weight, likes, masks
+        given = [group.evidence(state) if group.table is not None else None for group in c.groups]
+        for g, (group, known) in enumerate(zip(c.groups, given)):
+            likes[g] = known[0] if known is not None else self._contract(group, state)
+        return weight, likes, given
 
     def _contract(self, group: _Group, state: np.ndarray, query=None) -> np.ndarray:
         """P(e_group | C) (2,), or P(e_group, query | C) (2, 2), of a large group by einsum.
@@ -395,7 +411,7 @@ class ClassNetwork:
     def infer(self, state: np.ndarray) -> tuple[float, np.ndarray]:
         """:meth:`evaluate` computed afresh: the exact factorised inference of the module docstring."""
         c = self.compiled()
-        weight, likes, masks = self._factors(state)
+        weight, likes, given = self._factors(state)
         joint = weight * likes.prod(0)
         total = joint.sum()
         out = np.zeros(len(self.features))
@@ -405,23 +421,25 @@ class ClassNetwork:
         open_rows = state[c.singles] < 0
         if open_rows.any():
             out[c.singles[open_rows]] = information(posterior[None, :, None] * c.single_cpt[open_rows])
-        n_groups = len(c.groups)
-        if n_groups:
-            before = np.vstack([np.ones((1, 2)), np.cumprod(likes, 0)])[:n_groups]  # product of the groups before g
-            after = np.vstack([np.cumprod(likes[::-1], 0)[::-1], np.ones((1, 2))])[1:]  # ... and after g
-        for g, (group, mask) in enumerate(zip(c.groups, masks)):
-            open_nodes = np.flatnonzero(state[group.positions] < 0)
+        # the products of the groups before g and after g, each multiplied in the order of a
+        # cumulative product (a few groups: rows multiplied one by one cost less than np.cumprod)
+        before, after, product = [], [None] * len(c.groups), np.ones(2)
+        for like in likes:
+            before.append(product)
+            product = product * like
+        product = np.ones(2)
+        for g in reversed(range(len(c.groups))):
+            after[g] = product
+            product = product * likes[g]
+        for g, (group, known) in enumerate(zip(c.groups, given)):
+            if known is not None:
+                _, open_nodes, both = known
+            else:
+                open_nodes = np.flatnonzero(state[group.positions] < 0)
             if not len(open_nodes):
                 continue
             rest = weight * before[g] * after[g] / total
-            if mask is not None:
-                present = (group.table * mask) @ group.bits[:, open_nodes]  # P(F_j = 1, e_g | C) (2, k)
-                # laid out (C, F_j, F) and viewed as (F_j, C, F): information sums each table in the
-                # order its layout gives, so this layout is part of the result's last bit
-                both = np.empty((2, len(open_nodes), 2))
-                both[:, :, 0], both[:, :, 1] = likes[g][:, None] - present, present
-                both = both.transpose(1, 0, 2)
-            else:
+            if known is None:
                 both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
             out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
         return float(posterior[1]), out
