@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.space.evaluate import feature_values
+from ftorch.space.evaluate import feature_values, values_only
 from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.reference import reference_values
@@ -53,6 +53,18 @@ def test_batched_values_equal_the_per_point_reference(records):
     features = sampled_features(records, seed=0) + sampled_features(records, seed=1) + synthetic_features(2)
     batched = feature_values(features, records).values.numpy()
     np.testing.assert_allclose(batched, reference_values(features, records), rtol=0, atol=1e-9)
+
+
+def test_values_alone_equal_feature_values_bit_for_bit(records):
+    """The learners' path (no locations, invalid samples not zeroed) gives the very same values,
+    synthetic features with many samples outside the images and Boolean compounds included."""
+    features = sampled_features(records, seed=4) + synthetic_features(5) + synthetic_features(7)
+    alone = values_only(features, records)
+    assert torch.equal(alone, feature_values(features, records).values)
+    assert torch.equal(values_only([], records), feature_values([], records).values)
+    empty = records[0]
+    empty.mask = torch.zeros_like(empty.mask)
+    assert bool((values_only(synthetic_features(6), empty) == 0).all())
 
 
 def test_sampled_features_have_value_one_at_their_own_reference_point(records):

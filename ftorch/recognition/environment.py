@@ -13,7 +13,7 @@ import torch
 
 from ..errors import InputError
 from ..images import as_image_batch, load_image
-from ..space.evaluate import feature_values
+from ..space.evaluate import values_only
 from ..space.features import Feature, FeatureTable
 from ..space.record import FeatureSpace, ImageRecords
 from .value_cache import ValueCache
@@ -85,7 +85,7 @@ class ImageSet:
             records = self.record(images[0])
         else:
             records = self.all_records if images == list(range(len(self))) else self.records(images)
-        return feature_values(features, records).values.cpu().numpy()  # in the records' precision, as the cache stores it
+        return values_only(features, records).cpu().numpy()  # in the records' precision, as the cache stores it
 
     def cache_state(self, table: FeatureTable | None = None) -> dict:
         """The value cache as JSON-ready data (:meth:`ValueCache.state_dict`)."""

@@ -19,7 +19,7 @@ from ..errors import InputError
 from .features import Feature, LocalFeature
 from .primitives import PartKind
 from .record import ImageRecords
-from .sampling import placements, steered_sample
+from .sampling import Frames, placements, sample_unmasked, steered
 
 
 @dataclass
@@ -49,6 +49,12 @@ def part_vector(kind: PartKind, vector: Sequence[float], device=None, dtype=None
 
 def local_values(features: list[LocalFeature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
     """Values of local features whose parts have the same kinds, part by part."""
+    return FeatureValues(*_local_fields(features, records, max_elements, located=True))
+
+
+def _local_fields(features: list[LocalFeature], records: ImageRecords, max_elements: int,
+                  located: bool) -> tuple[Tensor, ...]:
+    """:func:`local_values`' fields, or its values alone (a 1-tuple) where not ``located``."""
     device, dtype = records.device, records.dtype
     kinds = tuple(p.kind for p in features[0].parts)
     vectors = [torch.tensor([f.parts[i].vector for f in features], device=device, dtype=dtype) for i in range(len(kinds))]
@@ -58,11 +64,11 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
     if n_points == 0:
         zeros = torch.zeros(len(features), n_images, device=device, dtype=dtype)
         nan = torch.full_like(zeros, math.nan)
-        return FeatureValues(zeros, nan, nan, nan, nan)
+        return (zeros, nan, nan, nan, nan) if located else (zeros,)
     chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if len(kinds) > 1 else 1)))
-    results = [_local_chunk([v[s : s + chunk] for v in vectors], params[s : s + chunk], kinds, records, reference)
-               for s in range(0, len(features), chunk)]
-    return FeatureValues(*(torch.cat(parts) for parts in zip(*(r._fields() for r in results))))
+    results = [_local_chunk([v[s : s + chunk] for v in vectors], params[s : s + chunk], kinds, records, reference,
+                            located) for s in range(0, len(features), chunk)]
+    return tuple(torch.cat(parts) for parts in zip(*results))
 
 
 class _ReferencePoints:
@@ -99,16 +105,21 @@ class _ReferencePoints:
 
 
 def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, ...], records: ImageRecords,
-                 reference: _ReferencePoints) -> FeatureValues:
-    """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14)."""
+                 reference: _ReferencePoints, located: bool) -> tuple[Tensor, ...]:
+    """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14): the
+    fields of :class:`FeatureValues`, or the values alone where not ``located``."""
     numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
     observed = (reference.canonical**2).sum(-1).expand_as(numerator)
     valid = None
     attitudes = [tuple(params[:, i, j][:, None] for j in range(4)) for i in range(1, len(kinds))]
     parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
     next(parts)  # the first part was matched at the reference points themselves
+    frames = Frames.of(records, reference.image) if len(kinds) > 1 else None
     for i, (x, y, sigma, theta) in enumerate(parts, 1):
-        sample, ok = steered_sample(records, reference.image, x, y, sigma, theta, kinds[i] == PartKind.EDGEL)
+        edgel = kinds[i] == PartKind.EDGEL
+        # an invalid sample's cosine becomes -1 below, so its responses need not be zeroed first
+        sample, ok = sample_unmasked(records.pyramid, frames, x, y, sigma, edgel)
+        sample = steered(sample, theta, edgel)
         numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
         observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok
@@ -117,9 +128,11 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     cosine = cosine.clamp_min(0) if valid is None else torch.where(valid, cosine.clamp_min(0), -1.0)
     padded = cosine.new_full((len(params), *reference.padded), -1.0)
     padded[:, reference.image, reference.slot] = cosine
+    if not located:
+        return (padded.amax(-1).clamp_min(0),)
     best, where = padded.max(-1)
-    return FeatureValues(best.clamp_min(0), *(reference.located(field, best, where) for field in
-                                              (reference.x, reference.y, reference.sigma, reference.theta)))
+    return (best.clamp_min(0), *(reference.located(field, best, where) for field in
+                                 (reference.x, reference.y, reference.sigma, reference.theta)))
 
 
 @torch.no_grad()
@@ -129,6 +142,18 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
     All local features (texels, geometric compounds, the leaves of Boolean compounds) are
     evaluated once each, batched by structure; ``max_elements`` bounds the gathered tensors.
     """
+    return FeatureValues(*_fields(features, records, max_elements, located=True))
+
+
+@torch.no_grad()
+def values_only(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> Tensor:
+    """``feature_values(features, records).values`` (F, N), the same numbers, without finding
+    where each is reached: what the learners measure."""
+    return _fields(features, records, max_elements, located=False)[0]
+
+
+def _fields(features: Sequence[Feature], records: ImageRecords, max_elements: int, located: bool) -> tuple[Tensor, ...]:
+    """:class:`FeatureValues`' fields of ``features``, or their values alone (a 1-tuple) where not ``located``."""
     features = list(features)
     if not all(isinstance(f, Feature) for f in features):
         raise InputError("features: every item must be an ftorch Feature")
@@ -140,14 +165,14 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
         groups.setdefault(tuple(p.kind for p in leaf.parts), []).append(leaf)
     leaf_values: dict[LocalFeature, tuple[Tensor, ...]] = {}
     for group in groups.values():
-        result = local_values(group, records, max_elements)
+        result = _local_fields(group, records, max_elements, located)
         for j, leaf in enumerate(group):
-            leaf_values[leaf] = tuple(t[j] for t in result._fields())
+            leaf_values[leaf] = tuple(t[j] for t in result)
     if not features:
         empty = records.x.new_zeros(0, len(records))
-        return FeatureValues(empty, empty, empty, empty, empty)
+        return (empty,) * (5 if located else 1)
     rows = [_combine(f, leaf_values) for f in features]
-    return FeatureValues(*(torch.stack(col) for col in zip(*rows)))
+    return tuple(torch.stack(col) for col in zip(*rows))
 
 
 def _collect(feature: Feature, leaves: dict) -> None:

@@ -13,6 +13,7 @@ the image and the levels it reads exist.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -50,7 +51,12 @@ def steered_sample(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, s
     """A part's responses sampled at (x, y, sigma) (:func:`sample_part`) and steered to theta, so
     comparable with canonical descriptors (eq. 3.13), and their validity (alg. 3.6 step 4)."""
     sample, valid = sample_part(records, image, x, y, sigma, edgel)
-    return (rotate_pair(sample, theta) if edgel else steer(sample, theta)), valid
+    return steered(sample, theta, edgel), valid
+
+
+def steered(sample: Tensor, theta: Tensor, edgel: bool) -> Tensor:
+    """Samples of one part kind steered to theta (eq. 3.8)."""
+    return rotate_pair(sample, theta) if edgel else steer(sample, theta)
 
 
 def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor,
@@ -59,13 +65,36 @@ def sample_part(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigm
     broadcasts to it): (..., 2) first-order pairs at u for an edgel, (..., 15) blocks at u-1, u,
     u+1 for a texel, in the image frame, and validity (...). Invalid samples are zero. A texel
     reads 4 corners x 4 levels x 5 responses, an edgel 4 corners x 2 levels x 2."""
-    u = level_index(sigma)
-    size, levels = records.sizes[image], records.levels[image]
-    reach = 0 if edgel else 1
-    valid = ((x >= 0) & (y >= 0) & (x <= size[..., 1] - 1) & (y <= size[..., 0] - 1)
-             & (u - reach >= 0) & (u + reach <= levels - 1))
-    values = _read(records.pyramid, records.source[image].expand(x.shape), x, y, u, edgel)
+    values, valid = sample_unmasked(records.pyramid, Frames.of(records, image), x, y, sigma, edgel)
     return torch.where(valid[..., None], values, 0.0), valid
+
+
+class Frames(NamedTuple):
+    """The limits of valid samples in each sample's image (alg. 3.6 step 4), as the samples'
+    float type, and its row in the pyramid: found once for many parts sampled in the same images."""
+
+    x_max: Tensor
+    y_max: Tensor
+    u_max: Tensor
+    source: Tensor
+
+    @staticmethod
+    def of(records: ImageRecords, image: Tensor) -> "Frames":
+        size, levels, dtype = records.sizes[image], records.levels[image], records.dtype
+        return Frames((size[..., 1] - 1).to(dtype), (size[..., 0] - 1).to(dtype), (levels - 1).to(dtype),
+                      records.source[image])
+
+
+def sample_unmasked(pyramid: Pyramid, frames: Frames, x: Tensor, y: Tensor, sigma: Tensor,
+                    edgel: bool) -> tuple[Tensor, Tensor]:
+    """:func:`sample_part`'s values and validity, except that an invalid sample holds what its
+    nearest cells give (finite), not zero: for callers that discard invalid samples anyway."""
+    u = level_index(sigma)
+    reach = 0 if edgel else 1
+    # the limits are small integers, exact as floats: the same comparisons as with the integers
+    valid = ((x >= 0) & (y >= 0) & (x <= frames.x_max) & (y <= frames.y_max)
+             & (u - reach >= 0) & (u + reach <= frames.u_max))
+    return _read(pyramid, frames.source.expand(x.shape), x, y, u, edgel), valid
 
 
 def _read(pyramid: Pyramid, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edgel: bool) -> Tensor:
