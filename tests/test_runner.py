@@ -80,3 +80,9 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
     baseline = bench.learned_like_network(np.random.default_rng(0), table_limit=0, kind=bench._Unremembered)
     baseline.evaluate(np.full(len(baseline.features), -1))
     assert all(group.table is None and not group.contracted for group in baseline.compiled().groups)  # a true baseline
+    net = bench.learned_like_network(np.random.default_rng(0))
+    unobserved, observed = np.full(len(net.features), -1), np.ones(len(net.features), dtype=np.int64)
+    net.infer(unobserved)
+    assert bench.infer_afresh(net, observed)[0] == net.infer(observed)[0]
+    assert all(list(group.given) == [observed[group.positions].tobytes()]  # nothing remembered from before
+               for group in net.compiled().groups if group.table is not None)
