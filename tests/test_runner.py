@@ -77,6 +77,9 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
     large = report["large_group"]
     assert large["group"] > ClassNetwork.TABLE_LIMIT and large["evaluations"] > large["recognitions"] > 0
     assert large["ratio_vs_without_memory"] > 0 and large["max_difference_vs_without_memory"] == 0  # the same sums
+    small = report["small_groups"]
+    assert max(small["groups"]) <= ClassNetwork.TABLE_LIMIT and small["evaluations"] > small["recognitions"] > 0
+    assert small["ratio_vs_without_memory"] > 0 and small["max_difference_vs_without_memory"] == 0
     baseline = bench.learned_like_network(np.random.default_rng(0), table_limit=0, kind=bench._Unremembered)
     baseline.evaluate(np.full(len(baseline.features), -1))
     assert all(group.table is None and not group.contracted for group in baseline.compiled().groups)  # a true baseline
