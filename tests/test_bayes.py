@@ -112,19 +112,25 @@ def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the
     assert net.evaluate(longer)[0] == net.infer(longer)[0] and len(net.evaluate(longer)[1]) == 8
 
 
+def chain_and_singles(rng, linked: int, singles: int) -> ClassNetwork:
+    """A chain of ``linked`` nodes (one group) and ``singles`` arc-free nodes outside it, random CPTs."""
+    net = ClassNetwork("chain")
+    for i in range(linked):
+        net.add_feature(i, parents=[i - 1] if i else [])
+    for i in range(linked, linked + singles):
+        net.add_feature(i)
+    for key in net.features:
+        p = rng.uniform(0.05, 0.95, size=net.cpt[key].shape[:-1])
+        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
+    return net
+
+
 def test_large_groups_remember_contractions_by_their_own_evidence(monkeypatch):
     """A large group's contractions depend only on its own nodes' evidence: evidence elsewhere
     reuses them, the results equal contracting afresh bit for bit, and a change of the network
     forgets them."""
     rng = np.random.default_rng(3)
-    net = ClassNetwork("chain")
-    for i in range(17):
-        net.add_feature(i, parents=[i - 1] if i else [])
-    for i in range(17, 20):
-        net.add_feature(i)  # arc-free nodes outside the group
-    for key in net.features:
-        p = rng.uniform(0.05, 0.95, size=net.cpt[key].shape[:-1])
-        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
+    net = chain_and_singles(rng, 17, 3)
     group = net.compiled().groups[0]
     assert group.table is None and len(net.compiled().groups) == 1
     calls = []
@@ -149,15 +155,7 @@ def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch
     with pgmpy, and a change of the network forgets them."""
     from ftorch.recognition import bayes
 
-    rng = np.random.default_rng(4)
-    net = ClassNetwork("chain")
-    for i in range(4):
-        net.add_feature(i, parents=[i - 1] if i else [])
-    for i in range(4, 7):
-        net.add_feature(i)  # arc-free nodes outside the group
-    for key in net.features:
-        p = rng.uniform(0.05, 0.95, size=net.cpt[key].shape[:-1])
-        net.set_cpt(key, np.stack([1 - p, p], axis=-1))
+    net = chain_and_singles(np.random.default_rng(4), 4, 3)
     group = net.compiled().groups[0]
     assert group.table is not None and len(net.compiled().groups) == 1
     calls = []

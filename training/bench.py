@@ -12,8 +12,9 @@ Timings are the best of several repeats after a warm-up.
 
 ``python -m training.bench recognition [--quick] --json PATH`` times the inner loop of alg. 4.4:
 one ``ClassNetwork.infer`` (the posterior and the mutual information of every unobserved
-feature: ``evaluate`` without its memory of evidence states, its groups' memories emptied first) on networks shaped like learned ones (16 feature nodes: a geometric chain with a
-conjunction, a disjunction, and arc-free nodes), for random evidence. Baselines in the same
+feature: ``evaluate`` without its memory of evidence states, the groups' memories emptied first)
+on networks shaped like learned ones (16 feature nodes: a geometric chain with a conjunction, a
+disjunction, and arc-free nodes), for random evidence. Baselines in the same
 run: the same network with every linked group contracted by einsum, and pgmpy's
 VariableElimination (one query for the class and one per unobserved feature); all three are
 checked to agree. Then whole recognitions (alg. 4.4's queries, one node observed at a time) with
@@ -181,10 +182,9 @@ def features(args) -> dict:
     return report
 
 
-def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwork.TABLE_LIMIT,
-                         kind: type = ClassNetwork) -> ClassNetwork:
+def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwork.TABLE_LIMIT) -> ClassNetwork:
     """16 nodes: G2 <- G3 <- G4 (geometric chain, G4 -> G2 too), C -> {T, G2}, {a, b} -> D, 9 arc-free."""
-    net = kind("bench", table_limit)
+    net = ClassNetwork("bench", table_limit)
     structure = [("G2", []), ("G3", ["G2"]), ("G4", ["G3", "G2"]), ("T", []), ("C", []), ("a", []), ("b", []),
                  ("D", ["a", "b"])] + [(f"n{i}", []) for i in range(8)]
     for key, children in structure:
@@ -195,12 +195,11 @@ def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwo
     return _random_cpts(net, rng)
 
 
-def large_group_network(rng: np.random.Generator, kind: type = ClassNetwork, group: int = 20,
-                        singles: int = 10) -> ClassNetwork:
+def large_group_network(rng: np.random.Generator, group: int = 20, singles: int = 10) -> ClassNetwork:
     """``group`` linked nodes, each g_i a compound over g_(i-1) and g_(i-2): one group beyond
     ``TABLE_LIMIT``, contracted by einsum; and ``singles`` arc-free nodes. The largest networks of
     COIL-inc 20 look like this (linked groups of 17 and 21 nodes; 29 nodes per network on average)."""
-    net = kind("bench-large")
+    net = ClassNetwork("bench-large")
     for i in range(group):
         net.add_feature(f"g{i}", children=[f"g{j}" for j in (i - 1, i - 2) if j >= 0])
     for i in range(singles):
@@ -215,13 +214,6 @@ def _random_cpts(net: ClassNetwork, rng: np.random.Generator) -> ClassNetwork:
         net.set_cpt(key, np.stack([1 - p, p], axis=-1))
     net.prior = np.array([0.7, 0.3])
     return net
-
-
-class _Unremembered(ClassNetwork):
-    """The einsum baselines: every contraction computed afresh, as before large groups remembered
-    them (5534f5e)."""
-
-    _contract = ClassNetwork._contract_afresh
 
 
 def forget_groups(net: ClassNetwork) -> None:
@@ -258,36 +250,19 @@ def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = Fal
     return out
 
 
-def large_group_section(quick: bool, repeats: int) -> dict:
-    """Recognitions on :func:`large_group_network` with the large group's memory of contractions
-    against the same network computing each afresh, from empty memories every repeat."""
+def memory_section(build, truths: int, repeats: int) -> dict:
+    """Recognitions on the network ``build()`` makes, with the groups' memories of their own
+    evidence against the same network emptying them before every evaluation (as computing each
+    afresh), from empty memories every repeat."""
+    probe = build()
     rng = np.random.default_rng(1)
-    probe = large_group_network(rng)
-    truths = [rng.integers(0, 2, len(probe.features)) for _ in range(5 if quick else 20)]
-    device = torch.device("cpu")
-    (fast, ours), (slow, theirs) = _interleaved([
-        lambda: recognitions(large_group_network(np.random.default_rng(1)), truths),
-        lambda: recognitions(large_group_network(np.random.default_rng(1), _Unremembered), truths)], repeats, device)
-    difference = max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
-    return {"nodes": len(probe.features), "group": max(len(g.keys) for g in probe.compiled().groups),
-            "recognitions": len(truths), "evaluations": len(ours), "seconds": fast, "seconds_without_memory": slow,
-            "ratio_vs_without_memory": slow / fast, "max_difference_vs_without_memory": difference}
-
-
-def small_groups_section(quick: bool, repeats: int) -> dict:
-    """Recognitions on :func:`learned_like_network` (compiled groups of 2 to 4 nodes) with the
-    groups' memories of their own evidence against the same network emptying them before every
-    evaluation, from empty memories every repeat."""
-    rng = np.random.default_rng(2)
-    probe = learned_like_network(rng)
-    truths = [rng.integers(0, 2, len(probe.features)) for _ in range(20 if quick else 100)]
-    device = torch.device("cpu")
-    (fast, ours), (slow, theirs) = _interleaved([
-        lambda: recognitions(learned_like_network(np.random.default_rng(2)), truths),
-        lambda: recognitions(learned_like_network(np.random.default_rng(2)), truths, forget=True)], repeats, device)
+    states = [rng.integers(0, 2, len(probe.features)) for _ in range(truths)]
+    (fast, ours), (slow, theirs) = _interleaved([lambda: recognitions(build(), states),
+                                                 lambda: recognitions(build(), states, forget=True)],
+                                                repeats, torch.device("cpu"))
     difference = max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
     return {"nodes": len(probe.features), "groups": sorted(len(g.keys) for g in probe.compiled().groups),
-            "recognitions": len(truths), "evaluations": len(ours), "seconds": fast, "seconds_without_memory": slow,
+            "recognitions": truths, "evaluations": len(ours), "seconds": fast, "seconds_without_memory": slow,
             "ratio_vs_without_memory": slow / fast, "max_difference_vs_without_memory": difference}
 
 
@@ -296,9 +271,9 @@ def recognition(args) -> dict:
 
     rng = np.random.default_rng(0)
     net = learned_like_network(rng)
-    # the baseline contracts every group by einsum, each time afresh: remembered contractions
-    # would answer most of these evidence sets from memory, timing no contraction at all
-    einsum = learned_like_network(np.random.default_rng(0), table_limit=0, kind=_Unremembered)
+    # the baseline contracts every group by einsum; both empty the groups' memories first, which
+    # would answer most of these evidence sets, timing no contraction at all (infer_afresh)
+    einsum = learned_like_network(np.random.default_rng(0), table_limit=0)
     n = len(net.features)
     states = [np.where(rng.random(n) < 0.4, rng.integers(0, 2, n), -1) for _ in range(200 if args.quick else 1000)]
     device = torch.device("cpu")
@@ -331,7 +306,11 @@ def recognition(args) -> dict:
             "einsum_evaluations_per_s": len(states) / slow, "pgmpy_evaluations_per_s": len(few) / pg_seconds,
             "ratio_vs_einsum": slow / fast, "ratio_vs_pgmpy": (pg_seconds / len(few)) / (fast / len(states)),
             "max_difference_vs_einsum": agree, "max_difference_vs_pgmpy": agree_pgmpy,
-            "small_groups": small_groups_section(args.quick, repeats), "large_group": large_group_section(args.quick, repeats)}
+            # compiled groups of 2 to 4 nodes; one 20-node group contracted by einsum
+            "small_groups": memory_section(lambda: learned_like_network(np.random.default_rng(2)),
+                                           20 if args.quick else 100, repeats),
+            "large_group": memory_section(lambda: large_group_network(np.random.default_rng(1)),
+                                          5 if args.quick else 20, repeats)}
 
 
 def print_recognition(report: dict) -> None:
@@ -340,14 +319,12 @@ def print_recognition(report: dict) -> None:
           f"einsum groups {r['einsum_evaluations_per_s']:8.0f}/s (ratio {r['ratio_vs_einsum']:.1f})  "
           f"pgmpy VE {r['pgmpy_evaluations_per_s']:6.1f}/s (ratio {r['ratio_vs_pgmpy']:.0f})")
     print(f"agreement: {r['max_difference_vs_einsum']:.1e} vs einsum, {r['max_difference_vs_pgmpy']:.1e} vs pgmpy")
-    g = r["small_groups"]
-    print(f"small groups ({', '.join(map(str, g['groups']))} of {g['nodes']} nodes, tables), {g['recognitions']} recognitions, "
-          f"{g['evaluations']} evaluations: {g['seconds']:.2f} s, without their memory {g['seconds_without_memory']:.2f} s "
-          f"(ratio {g['ratio_vs_without_memory']:.2f}), max difference {g['max_difference_vs_without_memory']:.1e}")
-    g = r["large_group"]
-    print(f"large group ({g['group']} of {g['nodes']} nodes by einsum), {g['recognitions']} recognitions, "
-          f"{g['evaluations']} evaluations: {g['seconds']:.2f} s, without its memory {g['seconds_without_memory']:.2f} s "
-          f"(ratio {g['ratio_vs_without_memory']:.2f}), max difference {g['max_difference_vs_without_memory']:.1e}")
+    for name, how in (("small_groups", "tables"), ("large_group", "einsum beyond 14")):
+        g = r[name]
+        print(f"{name.replace('_', ' ')} ({'+'.join(map(str, g['groups']))} of {g['nodes']} nodes, {how}), "
+              f"{g['recognitions']} recognitions, {g['evaluations']} evaluations: {g['seconds']:.2f} s, without the "
+              f"groups' memory {g['seconds_without_memory']:.2f} s (ratio {g['ratio_vs_without_memory']:.2f}), "
+              f"max difference {g['max_difference_vs_without_memory']:.1e}")
 
 
 def print_report(report: dict) -> None:
