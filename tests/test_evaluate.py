@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.space.evaluate import feature_values, values_only
+from ftorch.space.evaluate import feature_values, local_values, values_only
 from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.reference import reference_values
@@ -61,6 +61,7 @@ def test_values_alone_equal_feature_values_bit_for_bit(records):
     features = sampled_features(records, seed=4) + synthetic_features(5) + synthetic_features(7)
     alone = values_only(features, records)
     assert torch.equal(alone, feature_values(features, records).values)
+    assert torch.equal(local_values(features[1:2], records).values[0], alone[1])  # the edgel pair, on its own
     assert torch.equal(values_only([], records), feature_values([], records).values)
     empty = records[0]
     empty.mask = torch.zeros_like(empty.mask)

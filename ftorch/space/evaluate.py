@@ -36,9 +36,6 @@ class FeatureValues:
     sigma: Tensor
     theta: Tensor
 
-    def _fields(self) -> tuple[Tensor, ...]:
-        return self.values, self.x, self.y, self.sigma, self.theta
-
 
 def part_vector(kind: PartKind, vector: Sequence[float], device=None, dtype=None) -> Tensor:
     """A part's vector in the 15-slot descriptor layout."""
@@ -142,17 +139,17 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
     All local features (texels, geometric compounds, the leaves of Boolean compounds) are
     evaluated once each, batched by structure; ``max_elements`` bounds the gathered tensors.
     """
-    return FeatureValues(*_fields(features, records, max_elements, located=True))
+    return FeatureValues(*_evaluate(features, records, max_elements, located=True))
 
 
 @torch.no_grad()
 def values_only(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> Tensor:
     """``feature_values(features, records).values`` (F, N), the same numbers, without finding
     where each is reached: what the learners measure."""
-    return _fields(features, records, max_elements, located=False)[0]
+    return _evaluate(features, records, max_elements, located=False)[0]
 
 
-def _fields(features: Sequence[Feature], records: ImageRecords, max_elements: int, located: bool) -> tuple[Tensor, ...]:
+def _evaluate(features: Sequence[Feature], records: ImageRecords, max_elements: int, located: bool) -> tuple[Tensor, ...]:
     """:class:`FeatureValues`' fields of ``features``, or their values alone (a 1-tuple) where not ``located``."""
     features = list(features)
     if not all(isinstance(f, Feature) for f in features):
