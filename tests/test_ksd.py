@@ -81,3 +81,32 @@ def test_distinctive_at_a_cutpoint_brute_force(seed):
             b = values[f][characterized & np.isfinite(values[f])]
             expected = max((a <= cuts[f]).mean() - (b <= cuts[f]).mean(), 0.0) if len(a) and len(b) else 0.0
             assert got[d, f].item() == expected  # counts are exact: the same float as by hand
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pair_powers_in_one_call_equal_pair_by_pair(seed):
+    """Alg. 5.2's powers of several pairs counted in one call (each row with its own class) equal
+    ``distinctive_at`` called pair by pair, bit for bit; a feature may serve two pairs."""
+    from ftorch.recognition.bayes import ClassNetwork
+    from ftorch.recognition.counting import Counting
+
+    rng = np.random.default_rng(seed)
+    counting, labels = Counting(), "ABCD"
+    for image in range(40):
+        counting.instances.add(image, {labels[image % 4]} | ({"A"} if image % 7 == 0 else set()))
+    networks = {c: ClassNetwork(c) for c in labels}
+    for i in range(9):
+        for c in labels[: 1 + i % 4]:
+            networks[c].add_feature(f"f{i}", threshold=float(rng.uniform(0.2, 0.8)))
+        for image in range(40):
+            if rng.random() < 0.8:
+                counting.instances.set(image, f"f{i}", float(rng.random()))
+    pairs = [(c, [d for d in labels if d != c][: 1 + k], list(networks[c].features)) for k, c in enumerate(labels)]
+    got = counting.pair_powers(networks, pairs)
+    for (c, others, features), block in zip(pairs, got):
+        present = torch.from_numpy(counting.instances.has(c))
+        against = torch.stack([torch.from_numpy(counting.instances.has(d)) for d in others]) & ~present
+        cuts = torch.tensor([networks[c].threshold[f] for f in features], dtype=torch.float64)
+        expected = distinctive_at(torch.from_numpy(counting.instances.block(features)), cuts, present, against)
+        assert block.shape == (len(others), len(features)) and torch.equal(block, expected)
+    assert counting.pair_powers(networks, []) == []

@@ -79,18 +79,22 @@ class Counting:
     def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple]) -> list[torch.Tensor]:
         """KSD_{c,d}(f) (len(others), len(features)) for each (c, others, features) of ``pairs`` (alg.
         5.2, ``ksd.distinctive_at``): node f at its cut-point in c's network, between instances of c
-        and instances of d that are not of c, for every d in ``others``."""
+        and instances of d that are not of c, for every d in ``others``. All pairs are counted in one
+        call (each row with its own class c); the counts are exact, as pair by pair."""
+        if not pairs:
+            return []
         member = {label: self.instances.has(label) for label in
                   dict.fromkeys(x for c, others, _ in pairs for x in (c, *others))}
-        out = []
-        for c, others, features in pairs:
-            present = member[c]
-            values = self.instances.block(features)
-            cuts = np.array([networks[c].threshold[f] for f in features])
-            against = np.stack([member[d] for d in others]) & ~present
-            out.append(distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
-                                      torch.from_numpy(against)))
-        return out
+        values = self.instances.block([f for _, _, features in pairs for f in features])
+        cuts = np.array([networks[c].threshold[f] for c, _, features in pairs for f in features], dtype=float)
+        present = np.concatenate([np.broadcast_to(member[c], (len(features), len(member[c])))
+                                  for c, _, features in pairs])
+        against = np.concatenate([np.stack([member[d] for d in others]) & ~member[c] for c, others, _ in pairs])
+        powers = distinctive_at(torch.from_numpy(values), torch.from_numpy(cuts), torch.from_numpy(present),
+                                torch.from_numpy(against))  # every group against every row: keep each pair's block
+        ends = np.cumsum([(len(others), len(features)) for _, others, features in pairs], 0)
+        return [powers[d - len(others) : d, f - len(features) : f]
+                for (_, others, features), (d, f) in zip(pairs, ends.tolist())]
 
     def forget(self, features: Iterable[Hashable], networks: dict[Hashable, ClassNetwork]) -> None:
         """Discarded features (alg. 5.3 step 4): their nodes, discriminated classes and instance columns go."""

@@ -62,8 +62,9 @@ def ksd(values: Tensor, characterized: Tensor, discriminated: Tensor, position: 
 
 def distinctive_at(values: Tensor, cutpoint: Tensor, characterized: Tensor, discriminated: Tensor) -> Tensor:
     """Distinctive power (D, F) of each row of ``values`` (F, n) at a given cut-point alpha (F,)
-    between the ``characterized`` instances (n,) and each of D ``discriminated`` groups (D, n): the
-    KSD_{c,d}(f) of alg. 5.2 for a node already discretized: cdf(alpha | discriminated) -
+    between the ``characterized`` instances (n,), or each row's own (F, n), and each of D
+    ``discriminated`` groups (D, n): the KSD_{c,d}(f) of alg. 5.2 for a node already
+    discretized: cdf(alpha | discriminated) -
     cdf(alpha | characterized) where positive, else 0, with cdf counting values <= alpha (a node
     is present above its cut-point); 0 where a group has no finite value. The counts for all
     groups at once are products of 0/1 matrices: exact integers, as counting one by one gives."""
