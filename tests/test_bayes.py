@@ -4,6 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
+from ftorch.recognition import bayes
 from ftorch.recognition.bayes import CLASS, ClassNetwork, compound_arcs
 from ftorch.space.features import Conjunction, Disjunction, Geometric, Part, Texel
 
@@ -153,8 +154,6 @@ def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch
     """A compiled group's likelihood and open-node tables depend only on its own nodes' evidence:
     evidence elsewhere reuses them, the results equal computing them afresh bit for bit and agree
     with pgmpy, and a change of the network forgets them."""
-    from ftorch.recognition import bayes
-
     net = chain_and_singles(np.random.default_rng(4), 4, 3)
     group = net.compiled().groups[0]
     assert group.table is not None and len(net.compiled().groups) == 1

@@ -6,6 +6,8 @@ import pytest
 import torch
 from scipy.stats import ks_2samp
 
+from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.counting import Counting
 from ftorch.recognition.ksd import distinctive_at, ksd
 
 
@@ -87,9 +89,6 @@ def test_distinctive_at_a_cutpoint_brute_force(seed):
 def test_pair_powers_in_one_call_equal_pair_by_pair(seed):
     """Alg. 5.2's powers of several pairs counted in one call (each row with its own class) equal
     ``distinctive_at`` called pair by pair, bit for bit; a feature may serve two pairs."""
-    from ftorch.recognition.bayes import ClassNetwork
-    from ftorch.recognition.counting import Counting
-
     rng = np.random.default_rng(seed)
     counting, labels = Counting(), "ABCD"
     for image in range(40):
