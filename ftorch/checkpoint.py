@@ -12,7 +12,9 @@ relative to it: the XOR of the two arrays' bits, zero where they agree, which co
 nothing and restores exactly (version 4). Versions 2 (texts in zlib) and 3 still read: a block's
 codec is told by its magic bytes, and their arrays are absolute. So a state
 survives a round trip bit for bit. Compressed data are inflated only up to the size their
-declared shape allows (``MAX_BYTES`` at most): a small damaged or hostile file cannot blow up. Writing goes to a temporary
+declared shape allows (``MAX_BYTES`` at most), and readers give the shape the rest of the file
+implies (a value cache's features x images, a CPT's parents), so a declared shape that differs is
+refused before anything is inflated: a small damaged or hostile file cannot blow up. Writing goes to a temporary
 file in the same folder, flushed and fsynced, then renamed over the target: a crash leaves
 either the old checkpoint or the new one, never half of one. Reading refuses, with one line
 naming the file, a missing, truncated, foreign, other-kind or newer checkpoint.
@@ -114,30 +116,39 @@ def _reference(reference: np.ndarray, shape: tuple, dtype: np.dtype) -> np.ndarr
     return reference.astype(dtype, copy=False).view(_BITS[dtype.str])
 
 
-def decode_array(data: dict, reference: np.ndarray | None = None) -> np.ndarray:
+def decode_array(data: dict, reference: np.ndarray | None = None, shape: tuple | None = None) -> np.ndarray:
     """Inverse of :func:`encode_array` (as float64; a relative array needs the ``reference`` it was
-    written with); ValueError where the data are damaged."""
+    written with); ValueError where the data are damaged. ``shape``: the shape the caller knows the
+    array has (from the rest of the file): any other declared shape is refused before anything is
+    inflated, so a file cannot make the reader allocate more than its own structure implies. Blocks
+    are inflated one at a time into the result."""
     try:
-        shape = tuple(int(v) for v in data["shape"])
+        declared = tuple(int(v) for v in data["shape"])
         dtype = np.dtype({"<f4": "<f4", "<f8": "<f8"}[data["dtype"]])
-        if any(v < 0 for v in shape):
-            raise ValueError(f"negative shape {shape}")
-        n_rows = shape[0] if shape else 1
-        row_bytes = (int(np.prod(shape[1:])) if shape else 1) * dtype.itemsize
+        if any(v < 0 for v in declared):
+            raise ValueError(f"negative shape {declared}")
+        if shape is not None and declared != tuple(shape):
+            raise ValueError(f"declares shape {declared} where the file's structure needs {tuple(shape)}")
+        n_rows = declared[0] if declared else 1
+        row_values = int(np.prod(declared[1:])) if declared else 1
         blocks = data["blocks"]
         if not isinstance(blocks, list) or len(blocks) != max(1, -(-n_rows // ROWS)):
             raise ValueError(f"{len(blocks) if isinstance(blocks, list) else 'no'} blocks for {n_rows} rows")
-        if n_rows * row_bytes > MAX_BYTES:
-            raise ValueError(f"declares {n_rows * row_bytes} bytes, more than the {MAX_BYTES} a checkpoint may hold")
-        raw = b"".join(_inflate(b, min(ROWS, n_rows - k * ROWS) * row_bytes) for k, b in enumerate(blocks))
-        flat = np.frombuffer(raw, dtype=dtype)
-        if data.get("relative", False) is not False:
-            if data["relative"] is not True or reference is None:
-                raise ValueError("written relative to values that are not given")
-            flat = (flat.reshape(shape).view(_BITS[dtype.str]) ^ _reference(reference, shape, dtype)).view(dtype)
+        if n_rows * row_values * dtype.itemsize > MAX_BYTES:
+            raise ValueError(f"declares {n_rows * row_values * dtype.itemsize} bytes, more than the {MAX_BYTES} a checkpoint may hold")
+        relative = data.get("relative", False)
+        if relative is not False and (relative is not True or reference is None):
+            raise ValueError("written relative to values that are not given")
+        bits = _reference(reference, declared, dtype).reshape(n_rows, row_values) if relative else None
+        out = np.empty((n_rows, row_values), np.float64)
+        for k, block in enumerate(blocks):
+            rows = slice(k * ROWS, min((k + 1) * ROWS, n_rows))
+            raw = _inflate(block, (rows.stop - rows.start) * row_values * dtype.itemsize)
+            part = np.frombuffer(raw, dtype=dtype).reshape(rows.stop - rows.start, row_values)
+            out[rows] = part if bits is None else (part.view(_BITS[dtype.str]) ^ bits[rows]).view(dtype)
     except (KeyError, TypeError, ValueError, OverflowError, zlib.error, lzma.LZMAError) as err:
         raise ValueError(f"damaged array ({err})") from None
-    return flat.reshape(shape).astype(np.float64)
+    return out.reshape(declared)
 
 
 def stored_position(index, size: int) -> int:
@@ -154,10 +165,14 @@ def encode_text(text: str) -> dict:
     return {"bytes": len(raw), "data": _compress(raw, xz=True)}
 
 
-def decode_text(data: dict) -> str:
-    """Inverse of :func:`encode_text`; ValueError where the data are damaged."""
+def decode_text(data: dict, limit: int = MAX_BYTES) -> str:
+    """Inverse of :func:`encode_text`; ValueError where the data are damaged or declare more than
+    ``limit`` bytes (refused before anything is inflated)."""
     try:
-        return _inflate(data["data"], int(data["bytes"])).decode("utf-8")
+        size = int(data["bytes"])
+        if size > limit:
+            raise ValueError(f"declares {size} bytes, more than the {limit} such a text may hold")
+        return _inflate(data["data"], size).decode("utf-8")
     except (KeyError, TypeError, ValueError, UnicodeDecodeError, zlib.error, lzma.LZMAError) as err:
         raise ValueError(f"damaged text ({err})") from None
 
@@ -205,7 +220,7 @@ def load_checkpoint(path, kind: str) -> dict:
         raise InputError(f"{path}: no such checkpoint file")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+    except ValueError as err:  # not UTF-8, not JSON, or an integer of more digits than Python converts
         raise InputError(f"{path}: not a readable checkpoint (truncated or not JSON: {err})") from None
     except RecursionError:
         raise InputError(f"{path}: not a readable checkpoint (JSON nested too deeply)") from None

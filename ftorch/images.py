@@ -11,6 +11,10 @@ Rules:
   or RGBA, as PIL and matplotlib give it (alpha is dropped): read as a batch it would be
   images 3 or 4 pixels wide, far below the smallest the scale space takes. Arrays from
   ``cv2.imread`` are BGR: pass the file itself, or convert with ``cv2.cvtColor(a, cv2.COLOR_BGR2RGB)``.
+- Where one image is expected (:func:`as_image`: an entry of a list of images), a 3-D array whose
+  first axis has 1 or 3 entries and whose last has not is in torch's (C, H, W) order; anything
+  that holds more than one image is refused, never cut to its first slice or channel.
+- Tensors must hold pixels: on the CPU or a CUDA device (not the meta device).
 """
 from __future__ import annotations
 
@@ -39,6 +43,9 @@ def as_image_batch(images, name: str = "images") -> Tensor:
         images = torch.from_numpy(np.ascontiguousarray(images))
     if not isinstance(images, Tensor):
         raise InputError(f"{name}: expected a torch.Tensor or numpy array, got {type(images).__name__}")
+    if images.device.type not in ("cpu", "cuda"):
+        raise InputError(f"{name}: a tensor on the {images.device.type} device holds no pixels to read; "
+                         "expected one on the CPU or a CUDA device")
     shape = tuple(images.shape)
     if images.numel() == 0:
         raise InputError(f"{name}: empty image, shape {shape}")
@@ -61,6 +68,20 @@ def as_image_batch(images, name: str = "images") -> Tensor:
         bad = int((~finite).sum())
         raise InputError(f"{name}: {bad} of {images.numel()} pixels are NaN or infinite")
     return images
+
+
+def as_image(item, name: str = "image") -> Tensor:
+    """One image (a file path, array or tensor) as a finite grey float (H, W) tensor, by the rules
+    above; InputError where ``item`` holds more than one image."""
+    if isinstance(item, (str, Path)):
+        return load_image(item)
+    data = torch.from_numpy(np.ascontiguousarray(item)) if isinstance(item, np.ndarray) and item.dtype != object else item
+    if isinstance(data, Tensor) and data.ndim == 3 and data.shape[0] in (1, 3) and data.shape[-1] not in (1, 3, 4):
+        data = data[None]  # (C, H, W): one grey or RGB image in torch's order
+    batch = as_image_batch(data, name)
+    if batch.shape[0] != 1:
+        raise InputError(f"{name}: expected one image, got shape {tuple(data.shape)}, which holds {batch.shape[0]}")
+    return batch[0, 0]
 
 
 def _to_float(images: Tensor, name: str) -> Tensor:

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..images import as_image_batch, load_image
+from ..images import as_image
 from ..space.evaluate import values_only
 from ..space.features import Feature, FeatureTable
 from ..space.record import FeatureSpace, ImageRecords
@@ -22,8 +22,10 @@ from .value_cache import ValueCache
 class ImageSet:
     """Images with their sets of true classes; records are computed once, on construction.
 
-    ``images`` are file paths, arrays or tensors of any sizes; ``names`` default to the file
-    names (or ``image N``). ``records``: these images' records where they were computed before
+    ``images`` are file paths, arrays or tensors of any sizes, one image each
+    (:func:`ftorch.images.as_image`); ``labels`` give each image's true classes: a set (or list) of
+    labels, or one label, any hashable value (``"cube"``, ``3``): a string is one label, never its
+    letters. ``names`` default to the file names (or ``image N``). ``records``: these images' records where they were computed before
     (``space.records(images)``, e.g. once for the folds that share the images); they are used
     as they are, shared, not copied. ``examples(label, n)`` draws n random images containing
     ``label`` (alg. 4.8 step 2).
@@ -37,7 +39,7 @@ class ImageSet:
             raise InputError("image set: no images")
         if records is not None and len(records) != len(images):
             raise InputError(f"{len(images)} images but {len(records)} records")
-        self.labels = [frozenset(l) for l in labels]
+        self.labels = [_label_set(l, i) for i, l in enumerate(labels)]
         self.names = list(names) if names is not None else [
             Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
         sources = [str(x) if isinstance(x, (str, Path)) else name for x, name in zip(images, self.names)]
@@ -52,9 +54,14 @@ class ImageSet:
 
     @staticmethod
     def _grey(item, name: str) -> torch.Tensor:
-        if isinstance(item, (str, Path)):
-            return load_image(item)
-        return as_image_batch(item, name)[0, 0]
+        return as_image(item, name)
+
+    def index(self, image) -> int:
+        """``image`` as a position in this set; InputError unless an integer from 0 to len - 1 (a
+        negative one would silently mean another image)."""
+        if isinstance(image, bool) or not isinstance(image, (int, np.integer)) or not 0 <= image < len(self):
+            raise InputError(f"image {image!r}: expected a position in this image set, an integer from 0 to {len(self) - 1}")
+        return int(image)
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -100,3 +107,18 @@ class ImageSet:
         pool = [i for i, labels in enumerate(self.labels) if label in labels]
         order = torch.randperm(len(pool), generator=generator).tolist()
         return [pool[i] for i in order[:n]]
+
+
+def _label_set(labels, image: int) -> frozenset:
+    """One image's true classes (:class:`ImageSet`): a set or list of labels, or one hashable label."""
+    if isinstance(labels, (set, frozenset, list)):
+        items = list(labels)
+    elif isinstance(labels, Hashable):
+        items = [labels]
+    else:
+        raise InputError(f"labels of image {image}: {type(labels).__name__} is not a label (any hashable value) "
+                         "or a set of labels")
+    for label in items:
+        if not isinstance(label, Hashable):
+            raise InputError(f"labels of image {image}: {label!r} is not hashable, so it cannot be a class label")
+    return frozenset(items)

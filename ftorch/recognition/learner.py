@@ -103,6 +103,19 @@ def _number(value) -> float:
     return float(value)
 
 
+GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
+MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed stays a signed 64-bit integer
+
+
+def _whole(name: str, value, minimum: int, maximum: int | None = None) -> int:
+    """An integer option from ``minimum`` (to ``maximum``); InputError for a float, a bool or a number out of range."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum or \
+            (maximum is not None and value > maximum):
+        bound = f"from {minimum} to {maximum}" if maximum is not None else f"of at least {minimum}"
+        raise InputError(f"{name} must be an integer {bound}, got {value!r}")
+    return int(value)
+
+
 def _count(value) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"count {value!r} is not an integer >= 0")
@@ -123,13 +136,12 @@ class DistinctiveFeatureLearner:
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
                  search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
                  cut_position: float = 0.5, test_information: float = 0.0):
-        if int(n_ex) < 1 or int(n_fgen) < 1:
-            raise InputError(f"n_ex and n_fgen must be at least 1, got n_ex={n_ex}, n_fgen={n_fgen}")
+        for name, count in (("n_ex", n_ex), ("n_fgen", n_fgen), ("search_rounds", search_rounds), ("redundancy", redundancy)):
+            _whole(name, count, 1)
+        _whole("seed", seed, 0, MAX_SEED)
         for name, bits in (("min_information", min_information), ("test_information", test_information)):
             if not 0.0 <= bits < 1.0:
                 raise InputError(f"{name} must lie in [0, 1) bits, got {bits}")
-        if int(search_rounds) < 1 or int(redundancy) < 1:
-            raise InputError(f"search_rounds and redundancy must be at least 1, got {search_rounds} and {redundancy}")
         if not 0.0 <= pseudocount < float("inf"):
             raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
         if not 0.0 <= cut_position <= 1.0:
@@ -147,6 +159,7 @@ class DistinctiveFeatureLearner:
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
         self.trainable = True  # False once loaded from a recognition-only state
+        self.sides: tuple[int, int] | None = None  # the smallest and largest shorter side of the images learned from
 
     @property
     def instances(self) -> InstanceList:
@@ -188,7 +201,7 @@ class DistinctiveFeatureLearner:
         return self._recognize_many(env, images, self.test_information)
 
     def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
-        images = list(images)
+        images = [env.index(i) for i in images]
         features = in_use(self.networks)
         table = env.values(features, images) if features else np.zeros((0, len(images)))
         out = []
@@ -214,6 +227,9 @@ class DistinctiveFeatureLearner:
         if not self.trainable:
             raise InputError("this learner was loaded from a recognition-only file (learner.json) and cannot learn: "
                              "load a state saved with training=True, such as a fold's checkpoint.json, to go on learning")
+        image = env.index(image)
+        side = min(env.images[image].shape)
+        self.sides = (side, side) if self.sides is None else (min(self.sides[0], side), max(self.sides[1], side))
         self.presentations += 1
         true = env.labels[image]
         for label in sorted(true, key=str):  # network order breaks ties in alg. 4.4: keep it fixed
@@ -375,7 +391,7 @@ class DistinctiveFeatureLearner:
         table = FeatureTable() if own else table
         state = {"n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information,
                  **self.options(), "presentations": self.presentations, "sampled": self.sampled,
-                 "networks": self._networks_state(table)}
+                 "sides": None if self.sides is None else list(self.sides), "networks": self._networks_state(table)}
         if training:
             instances = self.instances
             state.update({
@@ -410,12 +426,17 @@ class DistinctiveFeatureLearner:
             options[k] = _number(options[k])
         self.set_params(**options)
         self.presentations, self.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])
+        sides = state.get("sides")  # files written before sides were recorded have none
+        if sides is not None and (not isinstance(sides, list) or len(sides) != 2 or _count(sides[0]) > _count(sides[1])):
+            raise ValueError(f"sides {sides!r}: expected [smallest, largest] shorter image side")
+        self.sides = None if sides is None else (sides[0], sides[1])
         self.networks = {}
         for record in state["networks"]:
-            net = ClassNetwork.of(_label(record["label"]), [at(i) for i in record["features"]],
-                                  [[at(p) for p in ps] for ps in record["parents"]],
+            parents = [[at(p) for p in ps] for ps in record["parents"]]
+            net = ClassNetwork.of(_label(record["label"]), [at(i) for i in record["features"]], parents,
                                   [_number(t) for t in record["threshold"]], [_number(p) for p in record["prior"]],
-                                  [decode_array(table) for table in record["cpt"]])
+                                  [decode_array(table, shape=(2,) * (len(ps) + 2))  # [c, p1..pk, f]
+                                   for table, ps in zip(record["cpt"], parents)])
             if net.label in self.networks:
                 raise ValueError(f"two networks for class {net.label!r}")
             self.networks[net.label] = net
@@ -426,16 +447,15 @@ class DistinctiveFeatureLearner:
         self.generator.set_state(torch.Generator().get_state())  # in place: the parts hold this generator
         if not self.trainable:
             return
-        self.generator.set_state(torch.from_numpy(decode_array(state["generator"]).astype(np.uint8)))
+        self.generator.set_state(torch.from_numpy(decode_array(state["generator"], shape=GENERATOR_STATE).astype(np.uint8)))
         self.counting.discriminates.update({(c, at(f)): frozenset(d) for c, f, d in state["discriminates"]})
         self.usage = {at(f): _count(n) for f, n in state["usage"]}
         block = state["instances"]
         for image, labels in zip(block["images"], block["labels"]):
             self.instances.add(image, labels)
         columns = [at(i) for i in block["features"]]
-        values = decode_array(block["values"], _cached(env, columns, self.instances.images))
-        if values.shape != (len(self.instances), len(columns)):
-            raise ValueError(f"instance values of shape {values.shape} for {len(self.instances)} images and {len(columns)} features")
+        values = decode_array(block["values"], _cached(env, columns, self.instances.images),
+                              shape=(len(self.instances), len(columns)))
         if not are_stored_values(values):
             raise ValueError("instance values outside [0, 1] (feature values are similarities, eq. 3.13)")
         if columns:

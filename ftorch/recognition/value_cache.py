@@ -95,11 +95,9 @@ class ValueCache:
         try:
             known = unpack_features(state["table"]) if features is None else features
             features = [known[stored_position(i, len(known))] for i in state["features"]]
-            values = decode_array(state["values"])
+            values = decode_array(state["values"], shape=(len(features), self.images))
         except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
             raise InputError(f"value cache is damaged: {err}") from None
-        if values.shape != (len(features), self.images):
-            raise InputError(f"value cache holds {values.shape}, expected ({len(features)}, {self.images}) for this image set")
         if not are_stored_values(values):
             raise InputError("value cache is damaged: values outside [0, 1] (feature values are similarities, eq. 3.13)")
         if not np.array_equal(values.astype(self.dtype), values, equal_nan=True):

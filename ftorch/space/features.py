@@ -286,6 +286,7 @@ class Disjunction(_Boolean):
 
 
 CHUNK = 1024  # features per compressed block of a packed table
+MAX_FEATURE_BYTES = 1 << 16  # a feature's JSON is far shorter (a few hundred bytes): bounds what a block may declare
 
 
 class FeatureTable:
@@ -344,7 +345,7 @@ def unpack_features(data: dict) -> list[Feature]:
     features = []
     for block in data["blocks"]:
         try:
-            items = json.loads(decode_text(block))
+            items = json.loads(decode_text(block, CHUNK * MAX_FEATURE_BYTES))
         except (json.JSONDecodeError, RecursionError) as err:
             raise ValueError(f"damaged feature table ({type(err).__name__})") from None
         if not isinstance(items, list):

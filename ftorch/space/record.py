@@ -9,6 +9,7 @@ first-order slots of the middle block (3.4.1) and leaves the rest zero.
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Sequence
@@ -19,7 +20,7 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from ..errors import InputError
-from ..images import as_image_batch, load_image
+from ..images import as_image, as_image_batch
 from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
 from .salient import Points, SalientPoints
 from .scale_space import ScaleSpace, ScaleSpaceOutput
@@ -266,11 +267,14 @@ class FeatureSpace(nn.Module):
         height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
         return height, width, max(self.scale_space.num_levels(*shape) for shape in shapes) + 3
 
-    def pyramid_nbytes(self, images: Sequence[Tensor]) -> int:
-        """Bytes of the pyramid :meth:`records` builds for these grey (H, W) float images, known
-        before building it: a lower bound of the records' ``nbytes`` (points and descriptors add to it)."""
-        height, width, entries = self._pyramid_layout([image.shape[-2:] for image in images])
-        dtype = functools.reduce(torch.promote_types, [image.dtype for image in images])
+    def pyramid_nbytes(self, images: Sequence) -> int:
+        """Bytes of the pyramid :meth:`records` builds for these grey (H, W) float images (or for
+        float32 images of these (H, W) shapes), known before building it: a lower bound of the
+        records' ``nbytes`` (points and descriptors add to it)."""
+        shapes = [tuple(image.shape[-2:]) if isinstance(image, Tensor) else tuple(image) for image in images]
+        height, width, entries = self._pyramid_layout(shapes)
+        dtype = functools.reduce(torch.promote_types, [image.dtype if isinstance(image, Tensor) else torch.float32
+                                                       for image in images])
         return len(images) * height * width * entries * 5 * dtype.itemsize  # 2 first- and 3 second-order maps
 
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
@@ -285,22 +289,20 @@ class FeatureSpace(nn.Module):
         loaded = []
         for i, item in enumerate(images):
             name = names[i] if names is not None else str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
-            image = load_image(item) if isinstance(item, (str, Path)) else item
-            batch = as_image_batch(image, name)
-            if batch.shape[0] != 1:
-                raise InputError(f"{name}: expected one image, got a batch of {batch.shape[0]}")
+            image = as_image(item, name)
             try:
-                self.scale_space.num_levels(*batch.shape[-2:])
+                self.scale_space.num_levels(*image.shape)
             except InputError as err:
                 raise InputError(f"{name}: {err}") from None
-            loaded.append(batch[0].to(device))
+            loaded.append(image[None].to(device))
+        height, width, entries = self._pyramid_layout([image.shape[-2:] for image in loaded])
+        require_memory(self.pyramid_nbytes(loaded), device, f"{len(loaded)} images of up to {height}x{width} pixels")
         groups: dict[tuple, list[int]] = {}
         for i, image in enumerate(loaded):
             groups.setdefault((tuple(image.shape), image.dtype), []).append(i)
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
         # each batch's responses are written straight into the joined pyramid, so that building
         # holds one set of tables, not two
-        height, width, entries = self._pyramid_layout([image.shape[-2:] for image in loaded])
         parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
             space = self.scale_space(torch.stack([loaded[i] for i in idx]))
@@ -313,3 +315,34 @@ class FeatureSpace(nn.Module):
         inverse = torch.empty(len(order), dtype=torch.long)
         inverse[torch.tensor(order)] = torch.arange(len(order))
         return joined[inverse.to(joined.device)]
+
+
+def free_memory(device: torch.device) -> int | None:
+    """Bytes free for new tensors on ``device``: the GPU's free memory, or the CPU's available memory
+    (Linux's MemAvailable, else the free physical pages); None where the system does not tell."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return int(torch.cuda.mem_get_info(device)[0])
+    if device.type != "cpu":
+        return None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as info:
+            for line in info:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def require_memory(nbytes: int, device, what: str) -> None:
+    """InputError, before anything is computed, where ``what`` needs a scale-space pyramid of
+    ``nbytes`` that ``device`` has no room for (:func:`free_memory`)."""
+    free = free_memory(device)
+    if free is not None and nbytes > free:
+        raise InputError(f"{what} need {nbytes / 2**30:.1f} GiB for their scale-space pyramid, more than the "
+                         f"{free / 2**30:.1f} GiB free on {torch.device(device)}: reduce the images (area averaging "
+                         "to a smaller side, e.g. the runner's --size) or use fewer at once")
