@@ -50,8 +50,6 @@ def test_coil_size_area_averages_to_the_shared_32_pixel_images(coil_dir):
         coil_task(coil_dir, classes=2, views=2, size=64)
     with pytest.raises(InputError, match="at least 9 pixels"):
         coil_task(coil_dir, classes=2, views=2, size=0)
-    with pytest.raises(InputError, match="not to class folders"):
-        load_task("folder", coil_dir, size=16)
 
 
 def test_folder_task_and_its_errors(tmp_path):

@@ -10,6 +10,7 @@ import torch
 
 from ftorch.errors import InputError
 from training import run
+from training.cli.outputs import Ledger
 from training.cli.parallel import CORES, TasksFailed, run_tasks, share_idle_cores
 
 from .test_protocol import check_events
@@ -138,7 +139,8 @@ def test_a_process_without_shared_records_computes_each_view_set_once(tmp_path, 
     calls.clear()  # a worker that runs a task of another data set next (a Ray worker serves many runs)
     other = tmp_path / "other"
     args = {**vars(run.parser().parse_args([*seeds, "--size", "24"])), "quiet": True}
-    run.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False})
+    run.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False,
+                   "ledger": Ledger(str(other))})
     assert len(calls) == 2  # its own records, not those of the views with the same indices before
 
 

@@ -27,8 +27,6 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
-
 import cv2
 import numpy as np
 import torch
@@ -42,7 +40,10 @@ from ftorch.space.generate import expand_geometric, random_edgel_pair, random_te
 from ftorch.space.kernels import derivative_kernels
 from ftorch.space.reference import reference_values, scipy_basis
 from training.data.builtin import builtin_scene
+from ftorch.errors import InputError
+from training.cli.arguments import Parser
 from training.cli.devices import resolve_device
+from training.cli.outputs import writable_file
 
 TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
 
@@ -344,7 +345,7 @@ def print_report(report: dict) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    top = argparse.ArgumentParser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
+    top = Parser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command", required=True)
     p = commands.add_parser("features", help="feature-space benchmark")
     p.add_argument("--quick", action="store_true", help="fewer repeats and features (under a minute)")
@@ -358,15 +359,24 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    if args.command == "recognition":
-        report = recognition(args)
-        print_recognition(report)
-    else:
-        report = features(args)
-        print_report(report)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        write_text(args.json, json.dumps(report, indent=2) + "\n")
+    try:
+        if args.json:
+            writable_file(args.json, "--json")  # before the benchmark runs, not after
+        if args.command == "recognition":
+            report = recognition(args)
+            print_recognition(report)
+        else:
+            resolve_device(args.device)
+            report = features(args)
+            print_report(report)
+        if args.json:
+            write_text(args.json, json.dumps(report, indent=2) + "\n")
+    except InputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"error: {err.filename or args.json}: {err.strerror or err}", file=sys.stderr)
+        return 2
     return 0
 
 

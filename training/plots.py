@@ -7,8 +7,6 @@ functions return the matplotlib figure: :func:`figure_rgb` renders it for PNG fi
 ``SummaryWriter.add_figure`` for TensorBoard (both close it)."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import matplotlib
 
 matplotlib.use("Agg")  # files and TensorBoard only, never a window
@@ -16,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from ftorch.space.draw import save_rgb  # noqa: E402
+from training.recognition.report import shown  # noqa: E402
 
 OUTCOMES = ("accuracy", "correct", "ambiguous", "ignorant", "wrong")
 
@@ -90,13 +88,6 @@ def fold_curves_figure(fold: dict, config: dict) -> Figure:
     return _curves([fold], f"{_title(config)}, fold {fold['fold']}", _incremental([fold]))
 
 
-def write_curves(out: Path, report: dict) -> Path:
-    """``out``/curves.png: :func:`curves_figure`."""
-    path = out / "curves.png"
-    save_rgb(path, figure_rgb(curves_figure(report)))
-    return path
-
-
 def growth_figure(report: dict) -> Figure:
     """Figure 5.19: features sampled so far against classes taught, log-log, for every fold (and
     fold 1 of every further seed of a ``--seeds`` run, in grey) with the power law a * classes**b
@@ -104,8 +95,7 @@ def growth_figure(report: dict) -> Figure:
     growth, config = report["growth"], report.get("config", {})
     figure, ax = plt.subplots(figsize=(6.4, 4.6), dpi=100)
     for k, points in growth["sampled"].items():
-        b = growth["folds"][k]["exponent"]
-        ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {b:.2f}")
+        ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {shown(growth['folds'][k]['exponent'])}")
     seeds = report.get("seeds", {}).get("growth")
     if seeds:
         more = seeds["seeds"][1:]
@@ -113,8 +103,9 @@ def growth_figure(report: dict) -> Figure:
             ax.plot(*zip(*points), color="0.6", linewidth=0.8, marker=".", markersize=3, zorder=1,
                     label=f"fold {seeds['fold']}, seed{'s' * (len(more) > 1)} {_span(more)}" if n == 0 else None)
     classes = np.array(sorted({c for points in growth["sampled"].values() for c, _ in points}))
-    ax.plot(classes, growth["scale"] * classes.astype(float) ** growth["exponent"], "k--", linewidth=1,
-            label=f"fit a * classes^b: b = {growth['exponent']:.2f}{_interval(growth['interval'])}")
+    if growth["exponent"] is not None:
+        ax.plot(classes, growth["scale"] * classes.astype(float) ** growth["exponent"], "k--", linewidth=1,
+                label=f"fit a * classes^b: b = {growth['exponent']:.2f}{_interval(growth['interval'])}")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ticks = [classes[0]]
@@ -130,7 +121,7 @@ def growth_figure(report: dict) -> Figure:
     ax.legend(fontsize=7, loc="upper left")
     title = f"{_title(config)}: figure 5.19 form"
     if seeds:
-        title += f"\nb over seeds {_span(seeds['seeds'])}: {seeds['mean']:.2f}{_interval(seeds['interval'])}"
+        title += f"\nb over seeds {_span(seeds['seeds'])}: {shown(seeds['mean'])}{_interval(seeds['interval'])}"
     ax.set_title(title, fontsize=10)
     figure.tight_layout()
     return figure
@@ -143,11 +134,4 @@ def _span(seeds: list[int]) -> str:
 def _interval(interval: list[float]) -> str:
     """The text " (95% low-high)", or none where too few points gave no interval."""
     low, high = interval
-    return "" if np.isnan(low) else f" (95% {low:.2f}-{high:.2f})"
-
-
-def write_growth(out: Path, report: dict) -> Path:
-    """``out``/growth.png: :func:`growth_figure`."""
-    path = out / "growth.png"
-    save_rgb(path, figure_rgb(growth_figure(report)))
-    return path
+    return "" if low is None else f" (95% {low:.2f}-{high:.2f})"

@@ -28,8 +28,12 @@ if __name__ == "__main__":  # Ctrl-C while torch is still loading is one line to
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import shutil  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
+from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,19 +45,19 @@ from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid,
 from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.recognition.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
-from ftorch.space.record import ImageRecords
+from ftorch.space.record import ImageRecords, require_memory
 from training.data.augment import augment, overview as augmented_overview
 from training.cli.arguments import MAX_SEED, Parser, at_least, number, seed
 from training.data.builtin import builtin_scene
-from training.data.datasets import Task, load_task
+from training.data.datasets import Task, load_task, reduced
 from training.cli.devices import described, machine, resolve_device
-from training.cli.outputs import run_folder, writable_folder
-from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
+from training.cli.outputs import Ledger, RunFolder, locked, writable_folder
+from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.plots import fold_curves_figure, write_curves, write_growth
+from training.plots import curves_figure, figure_rgb, fold_curves_figure, growth_figure
 from training.grasping.command import add_parser as add_grasp_parser
 from training.recognition.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
-from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, write_json, write_markdown
+from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, shown, write_json, write_markdown
 
 
 def salient(args) -> int:
@@ -171,12 +175,12 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading:
     return pictures
 
 
-def save_pictures(pictures: list[tuple[str, np.ndarray]], folder: Path) -> list[Path]:
-    """Pictures of :func:`feature_pictures` as PNG files ``folder``/<name>.png."""
-    paths = []
-    for name, picture in pictures:
-        paths.append(folder / f"{name}.png")
-        save_rgb(paths[-1], picture)
+def save_pictures(pictures: list[tuple[str, np.ndarray]], folder: Path, ledger: Ledger) -> list[Path]:
+    """Pictures of :func:`feature_pictures` as PNG files ``folder``/<name>.png, recorded in ``ledger`` first."""
+    paths = [folder / f"{name}.png" for name, _ in pictures]
+    ledger.files(*paths)
+    for path, (_, picture) in zip(paths, pictures):
+        save_rgb(path, picture)
     return paths
 
 
@@ -204,21 +208,24 @@ def _stages(text: str) -> int | None:
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
-                incremental: bool, records: dict[tuple, ImageRecords]
+                incremental: bool, records: dict[tuple, ImageRecords], ledger: Ledger
                 ) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
     """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}, with
     the view sets' ``records`` where computed before (:func:`shared_records`), to which it adds
     those it computes (not augmented training sets, whose copies are drawn per fold); also returns
-    the learned features' pictures."""
+    the learned features' pictures. Files are recorded in the run's ``ledger`` before they are written."""
     from torch.utils.tensorboard import SummaryWriter
 
     config = run_config(args, task, seed, incremental)
     train, test = task.fold(k)
     progress = not args.quiet
+    folder = out / f"fold{k}"
+    ledger.files(folder / "checkpoint.json", folder / "learner.json")
+    ledger.events(logdir / f"fold{k}")
     with SummaryWriter(str(logdir / f"fold{k}")) as writer:
         fold = Fold(k, _image_set(task, train, space, progress, args.augment, seed, k, records.get(tuple(train))),
                     _image_set(task, test, space, progress, records=records.get(tuple(test))), config,
-                    out / f"fold{k}", task.classes(), progress, writer, incremental)
+                    folder, task.classes(), progress, writer, incremental)
         records.setdefault(tuple(test), fold.test.all_records)
         if not args.augment:
             records.setdefault(tuple(train), fold.train.all_records)
@@ -227,12 +234,17 @@ def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: P
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
         if args.augment:
             pictures.append(("augmented", augmented_overview(fold.train, len(train), f"{task.name}, seed {seed}, fold {k}")))
-        log_run(writer, config, entry, pictures)
+        if not fold.finished_before:  # a resumed fold that had ended logged its results then
+            log_run(writer, config, entry, pictures)
     return entry, fold, learner, pictures
 
 
 def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
-    return RunConfig(task.name, str(Path(args.data).resolve()) if args.data else None, task.classes(), args.views,
+    """The settings a run records: what ran (the task's classes, its views per class where all classes
+    have as many, else None: all of each), not only what was asked."""
+    counts = set(task.views_per_class().values())
+    return RunConfig(task.name, str(Path(args.data).resolve()) if args.data else None, task.classes(),
+                     counts.pop() if len(counts) == 1 else None,
                      args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
                      args.n_ex, args.n_fgen, args.min_information, **learner_options(args),
                      device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
@@ -282,23 +294,38 @@ def _loaded(args, device: torch.device) -> tuple[Task, dict[tuple, ImageRecords]
 
 def fold_task(job: dict) -> dict:
     """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
-    class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK.
-    ``job['records']``: the view sets' records where computed before (:func:`shared_records`); where
-    none are, those this process computed for an earlier task (:func:`_loaded`).
+    class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK, each
+    file recorded in the run's ``job['ledger']``. ``job['records']``: the view sets' records where
+    computed before (:func:`shared_records`); where none are, those this process computed for an
+    earlier task (:func:`_loaded`).
     Returns the fold's report entry, with the machine it trained on (a Ray node may differ from the
     runner's), and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
     device = resolve_device(args.device)
     task, own = _loaded(args, device)
     space = FeatureSpace().to(device)
-    out, k = Path(job["out"]), job["fold"]
+    out, k, ledger = Path(job["out"]), job["fold"], job["ledger"]
     entry, fold, learner, pictures = _train_fold(args, task, k, job["seed"], space, out, Path(job["logdir"]),
-                                                 job["incremental"], job.get("records") or own)
-    figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder)]
-    (fold.folder / "networks").mkdir(exist_ok=True)
+                                                 job["incremental"], job.get("records") or own, ledger)
+    figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder, ledger)]
+    bif = {label: fold.folder / "networks" / f"{label}.bif" for label in learner.networks}
+    ledger.files(*bif.values())
     for label, net in learner.networks.items():
-        write_text(fold.folder / "networks" / f"{label}.bif", net.to_bif())
+        write_text(bif[label], net.to_bif())
     return {"entry": {**entry, "machine": machine(device)}, "figures": figures}
+
+
+def check_inputs(task: Task, folds: int, augment: int, device: torch.device) -> None:
+    """Every input of a run, checked before anything is removed or computed (training/cli/outputs.py):
+    every class trains in every fold, every image loads, and the view sets' pyramids fit in memory."""
+    task.check_folds(folds)
+    shapes = task.shapes()
+    space = FeatureSpace()
+    sets = list(dict.fromkeys(tuple(view) for k in range(1, folds + 1) for view in task.fold(k)))
+    need = sum(space.pyramid_nbytes([shapes[i] for i in view]) for view in sets)
+    need += augment * max(space.pyramid_nbytes([shapes[i] for i in task.fold(k)[0]]) for k in range(1, folds + 1))
+    height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
+    require_memory(need, device, f"the {len(shapes)} images of the task (up to {height}x{width} pixels)")
 
 
 def recognize_command(args, incremental: bool = False) -> int:
@@ -310,18 +337,28 @@ def recognize_command(args, incremental: bool = False) -> int:
                               **learner_options(args))  # refuses bad parameters early
     start = time.perf_counter()
     out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
-    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite)
-    args.checkpoints = out  # where an interrupted run continues from (main)
-    torch.manual_seed(args.seed)
-    _LOADED.clear()  # each command loads its data afresh
-    task, _ = _loaded(args, device)
+    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
+        args.checkpoints = out = folder.out  # where an interrupted run continues from (main)
+        torch.manual_seed(args.seed)
+        _LOADED.clear()  # each command loads its data afresh
+        task, _ = _loaded(args, device)
+        check_inputs(task, args.folds, args.augment, device)
+        reach_ray(args.ray)
+        folder.clear()  # the inputs are good: only now is an old run replaced
+        return _recognize(args, incremental, device, task, folder, start)
+
+
+def _recognize(args, incremental: bool, device: torch.device, task: Task, folder: RunFolder, start: float) -> int:
+    """The body of :func:`recognize_command` once the run folder is held and the inputs checked."""
+    out, logdir, ledger = folder.out, folder.logdir, folder.ledger
     parallel = args.workers > 1 or args.ray is not None
     settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the tasks instead of one per fold
     jobs = [{"args": settings, "fold": k, "seed": args.seed, "out": str(out), "logdir": str(logdir),
-             "incremental": incremental} for k in range(1, args.folds + 1)]
+             "incremental": incremental, "ledger": ledger} for k in range(1, args.folds + 1)]
     jobs += [{"args": settings, "fold": 1, "seed": args.seed + n, "out": str(out / f"seed{args.seed + n}"),
-              "logdir": str(logdir / f"seed{args.seed + n}"), "incremental": incremental} for n in range(1, args.seeds)]
+              "logdir": str(logdir / f"seed{args.seed + n}"), "incremental": incremental, "ledger": ledger}
+             for n in range(1, args.seeds)]
     names = [f"fold {j['fold']} seed {j['seed']}" for j in jobs]
     records = shared_records(args, task, jobs, device)
     for job in jobs:
@@ -351,18 +388,20 @@ def recognize_command(args, incremental: bool = False) -> int:
                           folds, seeds)
     if args.peers:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
+    pictures = {"curves.png": curves_figure} | ({"growth.png": growth_figure} if report.get("growth", {}).get("exponent") is not None else {})
+    ledger.files(*(out / name for name in ("report.json", "report.md", *pictures)))
     write_json(out / "report.json", report)
-    figures.append(str(write_curves(out, report).relative_to(out)))
-    if "growth" in report and report["growth"]["points"] > 1:
-        figures.append(str(write_growth(out, report).relative_to(out)))
+    for name, figure in pictures.items():
+        save_rgb(out / name, figure_rgb(figure(report)))
+        figures.append(name)
     write_markdown(out / "report.md", report, figures)
     avg = report["average"]["final"]
     print(f"average: accuracy {avg['test']['accuracy']:.2f}, correct {avg['test']['correct']:.2f}, "
           f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
     if seeds:
         print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
-              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, one-tailed paired t-test p = {seeds['p']:.2g}")
-        if "growth" in seeds:
+              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, one-tailed paired t-test p = {shown(seeds['p'], '.2g')}")
+        if seeds.get("growth", {}).get("mean") is not None:
             g = seeds["growth"]
             print(f"{args.seeds} seeds, fold 1: features sampled ~ classes^b, b = {g['mean']:.2f} "
                   f"(95% interval over seeds {g['interval'][0]:.2f} to {g['interval'][1]:.2f})")
@@ -370,21 +409,57 @@ def recognize_command(args, incremental: bool = False) -> int:
     return 0
 
 
+SIDE_TOLERANCE = math.sqrt(2)  # one step of the half-octave scale space (DESIGN.md)
+
+
+def at_learned_size(task: Task, learner: DistinctiveFeatureLearner, args) -> Task:
+    """The task's images at the size the learner learned from (its ``sides``): features are measured
+    at absolute scales in pixels, so a learner recognizes images of another size as other objects.
+    Without ``--size``, images larger than a learner's single learned side are area-averaged down to
+    it (``args.size`` records it); an image whose shorter side then lies more than one scale step
+    (a factor of sqrt 2) outside the learned sides is refused. Learners saved before sides were
+    recorded are taken as they are."""
+    if learner.sides is None:
+        print(f"note: {args.checkpoint} does not record the image size it learned from; the images are "
+              "recognized as stored (--size reduces them)", file=sys.stderr)
+        return task
+    low, high = learner.sides
+    shapes = task.shapes()
+    if args.size is None and low == high and any(min(shape) > low for shape in shapes):
+        task = replace(task, images=[reduced(image, low) if min(shape) > low else image
+                                     for image, shape in zip(task.images, shapes)])
+        args.size = low
+        print(f"note: images area-averaged to the learned shorter side of {low} pixels (--size {low})", file=sys.stderr)
+        shapes = task.shapes()
+    off = [i for i, shape in enumerate(shapes) if not low / SIDE_TOLERANCE <= min(shape) <= high * SIDE_TOLERANCE]
+    if off:
+        learned = f"{low}" if low == high else f"{low} to {high}"
+        raise InputError(f"--checkpoint {args.checkpoint} learned from images whose shorter side is {learned} pixels; "
+                         f"{len(off)} of these are not within a scale step of that (e.g. {task.names[off[0]]}, "
+                         f"{shapes[off[0]][0]}x{shapes[off[0]][1]}): give images of the learned size "
+                         f"({'--size ' + str(low) + ' reduces larger ones' if args.size is None else 'another --size'})")
+    return task
+
+
 def evaluate_command(args) -> int:
     device = resolve_device(args.device)
     out = writable_folder(args.out)
     learner = DistinctiveFeatureLearner.load(args.checkpoint)
-    task = load_task(args.task, args.data, args.classes, args.views, first_view=args.first_view)
-    known = [str(c) for c in learner.networks]
-    unknown = sorted(set(task.labels) - set(known))
+    networks = {str(c): net for c, net in learner.networks.items()}  # classes by name, as folders and COIL name them
+    if len(networks) < len(learner.networks):
+        raise InputError(f"--checkpoint {args.checkpoint}: two classes have the same name as text "
+                         f"({', '.join(sorted(map(repr, learner.networks), key=str))}), so images cannot name them apart")
+    task = at_learned_size(load_task(args.task, args.data, args.classes, args.views, args.size, first_view=args.first_view),
+                           learner, args)
+    unknown = sorted(set(task.labels) - set(networks))
     if unknown:
         print(f"note: classes {', '.join(unknown)} of {args.data} are unknown to the learner", file=sys.stderr)
-    classes = sorted(set(known) | set(task.labels), key=str)
+    classes = sorted(set(networks) | set(task.labels), key=str)
     env = _image_set(task, list(range(len(task.images))), FeatureSpace().to(device), not args.quiet)
-    recognitions = learner.recognize_many(env, range(len(env)))
-    result = {"checkpoint": str(args.checkpoint), "data": str(args.data), "classes": classes,
+    recognitions = [replace(r, recognized={str(c) for c in r.recognized}) for r in learner.recognize_many(env, range(len(env)))]
+    result = {"checkpoint": str(args.checkpoint), "data": str(args.data), "classes": classes, "size": args.size,
               "test": test_block(recognitions, env.labels, classes), "features": feature_block(learner, recognitions),
-              "confusion": confusion(recognitions, env.labels, classes, learner.networks),
+              "confusion": confusion(recognitions, env.labels, classes, networks),
               "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
     write_json(out / "evaluate.json", result)
@@ -414,6 +489,15 @@ def robustness_command(args) -> int:
         DistinctiveFeatureLearner(test_information=args.test_information)  # refuses a bad threshold early
     run = Path(args.checkpoint)
     out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
+    # results written inside the run folder belong to the run: the run is locked meanwhile, and they
+    # are recorded in its ledger, so --overwrite of the run replaces them and nothing else
+    inside = out is not None and out.absolute().is_relative_to(run.absolute())
+    with locked(run, "--checkpoint") if inside else nullcontext():
+        return _robustness(args, device, kinds, run, out, Ledger(str(run)) if inside else None)
+
+
+def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger | None) -> int:
+    """The body of :func:`robustness_command` once its output folder is held."""
     try:
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
@@ -433,11 +517,13 @@ def robustness_command(args) -> int:
     results = []
     for k in folds:
         learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json").set_params(**answering)
-        results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet))
+        results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet, ledger))
     result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
               "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
               "average": average_robustness(results), "machine": machine(device),
               "seconds": time.perf_counter() - start}
+    if ledger is not None:
+        ledger.files(out / "robustness.json", out / "robustness.md")
     write_json(out / "robustness.json", result)
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
              f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the "
@@ -454,9 +540,11 @@ def robustness_command(args) -> int:
 def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
-    p.add_argument("--classes", type=at_least(2, "a number of classes"), help="the first N classes: COIL objects 1..N (default 6), Plym solids (default all 8)")
-    p.add_argument("--views", type=at_least(2, "a number of views"), default=20, help="consecutive COIL views per object (default 20)")
-    p.add_argument("--first-view", type=at_least(0, "a view number"), default=0, help="first COIL view (default 0)")
+    p.add_argument("--classes", type=at_least(2, "a number of classes"), help="the first N classes: COIL objects 1..N "
+                   "(default 6), class folders in name order or Plym solids (default all)")
+    p.add_argument("--views", type=at_least(1, "a number of views"), help="views per class from --first-view on: "
+                   "consecutive COIL views (default 20), images of a class folder in name order, Plym views (default all)")
+    p.add_argument("--first-view", type=at_least(0, "a view number"), default=0, help="first view of each class (default 0)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -469,8 +557,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
                    "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
-    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="image side in pixels: Plym renders at it (default 64); COIL images "
-                   "are area-averaged down to it on load (default: as stored, e.g. 32 or 128)")
+    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="image side in pixels: Plym renders at it (default 64); "
+                   "COIL and class-folder images are area-averaged down to that shorter side on load (default: as stored)")
     p.add_argument("--n-ex", type=at_least(1, "a number of images", 1000), default=5, help="example images per class, alg. 4.8 (default 5)")
     p.add_argument("--n-fgen", type=at_least(1, "a number of candidates", 1000), default=10, help="candidates per generation method, alg. 4.10 (default 10)")
     p.add_argument("--min-information", type=number, default=MIN_INFORMATION, metavar="BITS",
@@ -523,6 +611,8 @@ def parser() -> argparse.ArgumentParser:
     p = commands.add_parser("evaluate", help="recognize another image set with a saved learner")
     p.add_argument("--checkpoint", required=True, help="a learner.json written by recognize")
     _task_options(p, ("coil", "folder"), "coil")
+    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="area-average the images down to this "
+                   "shorter side (default: the side the learner learned from, where it learned from one)")
     p.add_argument("--out", default="runs/evaluate", help="output folder (default runs/evaluate)")
     p.set_defaults(run=evaluate_command)
     p = commands.add_parser("robustness", help="a run's learners and the peers on perturbed test views (7.2)")
@@ -552,9 +642,18 @@ def _terminated(*_) -> None:
     raise KeyboardInterrupt  # SIGTERM (a cluster's scheduler, kill) stops a run as Ctrl-C does
 
 
+def _thread_failed(failure) -> None:
+    """A background thread's exception: an OSError (TensorBoard's event writer on a full disk) is
+    raised again in the main thread at its next write and reported there in one line, so it is
+    not printed here as a traceback; anything else is."""
+    if not issubclass(failure.exc_type, OSError):
+        threading.__excepthook__(failure)
+
+
 def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _terminated)
+    threading.excepthook = _thread_failed
     argv = sys.argv[1:] if argv is None else argv
     args = parser().parse_args(argv or ["recognize"])
     try:
@@ -563,7 +662,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except OSError as err:  # e.g. a disk that filled up while writing; writes are atomic, nothing half-written
-        print(f"error: {err.filename or 'output'}: {err.strerror or err}", file=sys.stderr)
+        print(f"error: {err.filename}: {err.strerror or err}" if err.filename else f"error: {err.strerror or err}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         where = getattr(args, "checkpoints", None)

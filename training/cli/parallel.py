@@ -4,7 +4,9 @@ A task is a picklable function and its argument; every task writes only its own 
 so tasks cannot disturb one another, and the results come back in the order the tasks were
 given, whatever order they finish in. The report built from them is therefore the sequential
 one. A task that raises is reported and run once more; one that fails again is reported with
-its error, the others still finish, and :class:`TasksFailed` names every failure.
+its error, the others still finish, and :class:`TasksFailed` names every failure. A bad input,
+an interruption, and a full, over-quota or read-only disk are not the task's fault, and running it
+again cannot help: they end the run at once (one line, as every command error).
 
 - ``workers=1`` and no Ray: in this process, one after another.
 - ``workers=N``: N local processes (``spawn``), each with ``cores // N`` torch threads. Once fewer
@@ -12,13 +14,23 @@ its error, the others still finish, and :class:`TasksFailed` names every failure
   :func:`share_idle_cores` between its steps (a fold before each cycle, a grasp seed before each
   fold), which sets its threads to ``cores // busy workers``. Seeds differ in length, so the last
   task would otherwise run on one core while the others idle. Results do not depend on the
-  thread count (the sequential run, with all cores in one process, gives the same report).
+  thread count (the sequential run, with all cores in one process, gives the same report). A
+  worker watches its parent: if the runner dies without ending it (SIGKILL), the worker exits
+  within a second instead of finishing its task and then waiting for ever to hand it over.
 - ``ray=ADDRESS``: Ray tasks of one CPU each (``ray.init(address=ADDRESS)``; ``local`` starts a
-  local instance with ``workers`` CPUs). Ray is an optional extra: ``pip install -e ".[distributed]"``.
+  local instance with ``workers`` CPUs). The address must be ``local``, ``auto``, ``HOST:PORT`` or
+  ``ray://HOST[:PORT]``; a HOST:PORT is first reached over TCP with a timeout of
+  ``CONNECT_TIMEOUT`` seconds, so a wrong address is one line, not a hang. Ray is an optional
+  extra: ``pip install -e ".[distributed]"``.
 """
 from __future__ import annotations
 
+import errno
+import logging
 import os
+import re
+import socket
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -32,6 +44,12 @@ from ftorch.errors import InputError
 
 RETRIES = 1
 CORES = os.cpu_count() or 1
+CONNECT_TIMEOUT = 10.0  # seconds to reach a Ray address
+WATCH_PARENT = 1.0  # seconds between a worker's looks at its parent
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)  # disk errors that a second run of a task meets again
+RAY_ADDRESS = re.compile(r"^(?P<client>ray://)?(?P<host>[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?|\[[0-9A-Fa-f:.]+\])"
+                         r"(?::(?P<port>\d{1,5}))?$")
+RAY_CLIENT_PORT = 10001
 
 _busy = None  # in a local worker process: the count of busy workers, shared with the runner
 
@@ -52,9 +70,23 @@ def _with_threads(function: Callable, threads: int, argument):
 
 
 def _start_worker(busy) -> None:
-    """A local worker process's initializer: remember the runner's count of busy workers."""
+    """A local worker process's initializer: remember the runner's count of busy workers, and watch
+    the runner (module doc)."""
     global _busy
     _busy = busy
+    threading.Thread(target=_watch_parent, args=(os.getppid(),), name="watch-parent", daemon=True).start()
+
+
+def _watch_parent(parent: int) -> None:
+    """End this worker process once its parent ``parent`` is gone (it is then adopted by another)."""
+    while os.getppid() == parent:
+        time.sleep(WATCH_PARENT)
+    os._exit(1)
+
+
+def _fatal(error: BaseException) -> bool:
+    """An error that ends the run instead of a second try (module doc)."""
+    return isinstance(error, (InputError, KeyboardInterrupt)) or (isinstance(error, OSError) and error.errno in NO_ROOM)
 
 
 def share_idle_cores() -> None:
@@ -89,9 +121,9 @@ def _here(function: Callable, arguments: Sequence, names: Sequence[str]) -> list
             try:
                 results.append(function(argument))
                 break
-            except (InputError, KeyboardInterrupt):
-                raise
             except Exception as error:  # noqa: BLE001 - reported, retried once, then named
+                if _fatal(error):
+                    raise
                 print(f"{name} failed ({_describe(error)}); {'running it again' if attempt < RETRIES else 'giving up'}")
                 if attempt == RETRIES:
                     failures[name] = _describe(error)
@@ -118,9 +150,9 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
                 try:
                     results[i] = future.result()
                     bar.update(1)
-                except InputError:
-                    raise
                 except Exception as error:  # noqa: BLE001 - reported, retried once, then named
+                    if _fatal(error):
+                        raise
                     attempts[i] += 1
                     again = attempts[i] <= RETRIES
                     bar.write(f"{names[i]} failed ({_describe(error)}); {'running it again' if again else 'giving up'}")
@@ -158,10 +190,15 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
         raise InputError("--ray needs Ray: pip install -e \".[distributed]\"") from None
     started = not ray.is_initialized()
     if started:
-        if address == "local":
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(address=address, log_to_driver=False)
+        reach_ray(address)
+        try:
+            if address == "local":
+                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+            else:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
+        except Exception as error:  # noqa: BLE001 - Ray raises ConnectionError, RuntimeError, ValueError...
+            first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            raise InputError(f"--ray {address}: could not connect ({first})") from None
     try:
         remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_with_threads)
         refs = [remote.remote(function, 1, a) for a in arguments]  # Ray gives each task one CPU
@@ -189,3 +226,22 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
     finally:
         if started:
             ray.shutdown()
+
+
+def reach_ray(address: str | None) -> None:
+    """Refuse a Ray address of the wrong form, or one whose HOST:PORT does not answer over TCP within
+    ``CONNECT_TIMEOUT`` seconds (``local`` and ``auto`` are Ray's to find; None: no Ray). Commands
+    call it among their input checks, before an old run is replaced."""
+    if address is None or address in ("local", "auto"):
+        return
+    match = RAY_ADDRESS.match(address)
+    if match is None or (match["port"] is None and not match["client"]) or not 0 < int(match["port"] or RAY_CLIENT_PORT) < 65536:
+        raise InputError(f"--ray {address!r}: expected local, auto, HOST:PORT (a cluster's head, e.g. 10.0.0.5:6379) "
+                         "or ray://HOST[:PORT] (Ray Client)")
+    host, port = match["host"].strip("[]"), int(match["port"] or RAY_CLIENT_PORT)
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
+    except OSError as err:
+        reason = f"no answer within {CONNECT_TIMEOUT:g} s" if isinstance(err, TimeoutError) else (err.strerror or str(err))
+        raise InputError(f"--ray {address}: cannot reach a Ray cluster there ({reason}); start one with "
+                         "'ray start --head' or check the address") from None

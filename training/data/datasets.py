@@ -4,12 +4,19 @@ Each loader returns a :class:`Task`: images (paths or tensors), one class label 
 display names, and each image's position in its class's ordered sequence of views. Folds
 assign neighbouring views alternately (4.5): fold 1 trains on positions 0, 2, 4, ... and tests
 on 1, 3, 5, ...; fold 2 swaps the roles.
+
+``classes``, ``views`` and ``first_view`` mean the same for every task: the first N classes
+(COIL objects 1..N, class folders in name order, Plym solids in their order) and, of each, the
+views from ``first_view`` on (in view order, file-name order, rendering order); ``views=None``
+takes all from there. A task that cannot give what is asked refuses with one line; ``size``
+reduces files by area averaging (COIL and class folders) or sets Plym's rendering size.
 """
 from __future__ import annotations
 
+import math
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -47,6 +54,42 @@ class Task:
         train = [i for i, p in enumerate(self.positions) if p % 2 == fold - 1]
         return train, [i for i in range(len(self.images)) if i not in set(train)]
 
+    def views_per_class(self) -> dict[str, int]:
+        return {c: self.labels.count(c) for c in self.classes()}
+
+    def check_folds(self, folds: int) -> None:
+        """Refuse a class that a fold would not train on: with two folds every class needs two views
+        (fold 2 trains on the second)."""
+        if folds == 2:
+            few = [c for c, n in self.views_per_class().items() if n < 2]
+            if few:
+                raise InputError(f"class {few[0]!r} has only one view{f' (and {len(few) - 1} more classes)' if len(few) > 1 else ''}: "
+                                 "two folds train on alternate views, so fold 2 would never see it; give every class "
+                                 "two views or more, or use --folds 1")
+
+    def shapes(self) -> list[tuple[int, int]]:
+        """(H, W) of every image, each file loaded once to check it (an unreadable one is named)."""
+        return [tuple(self.view(i).shape) for i in range(len(self.images))]
+
+    def select(self, classes: int | None, views: int | None, first_view: int) -> "Task":
+        """The first ``classes`` classes and, of each, ``views`` views from position ``first_view``
+        (None: all from there), positions renumbered from 0 (module doc)."""
+        names = self.classes()
+        if classes is not None and not 2 <= classes <= len(names):
+            raise InputError(f"--classes {classes}: the {self.name} task has {len(names)} classes; expected 2 to {len(names)}")
+        kept = set(names[:classes])
+        short = [(c, n) for c, n in self.views_per_class().items() if c in kept
+                 and n < first_view + (1 if views is None else views)]
+        if short:
+            c, n = short[0]
+            wanted = f"views {first_view} to {first_view + views - 1}" if views is not None else f"view {first_view} and on"
+            raise InputError(f"class {c!r} of the {self.name} task has {n} views; --first-view {first_view} --views "
+                             f"{'all' if views is None else views} needs {wanted}")
+        end = math.inf if views is None else first_view + views
+        keep = [i for i, (c, p) in enumerate(zip(self.labels, self.positions)) if c in kept and first_view <= p < end]
+        return Task(self.name, [self.images[i] for i in keep], [self.labels[i] for i in keep],
+                    [self.names[i] for i in keep], [self.positions[i] - first_view for i in keep])
+
 
 def _folder(root) -> Path:
     root = Path(root)
@@ -68,6 +111,11 @@ def _files(root: Path) -> list[Path]:
         subfolders.sort()
         out += [Path(folder) / f for f in sorted(files)]
     return out
+
+
+def _check_size(size: int | None) -> None:
+    if size is not None and size < 9:
+        raise InputError(f"--size {size}: expected at least 9 pixels (the smallest image the scale space takes)")
 
 
 def reduced(path: Path, size: int) -> torch.Tensor:
@@ -92,8 +140,7 @@ def coil_task(root, classes: int = 6, views: int = 20, first_view: int = 0, size
     (any image size), so both a flat folder and the original COIL layout work. With ``size``
     the images are loaded and reduced by area averaging to that shorter side (:func:`reduced`).
     """
-    if size is not None and size < 9:
-        raise InputError(f"--size {size}: expected at least 9 pixels (the smallest image the scale space takes)")
+    _check_size(size)
     root = _folder(root)
     if classes < 2 or views < 2:
         raise InputError(f"the COIL task needs at least 2 classes and 2 views, got {classes} and {views}")
@@ -139,30 +186,24 @@ def folder_task(root) -> Task:
 def plym_task(size: int = 64, seed: int = 0, classes: int | None = None) -> Task:
     """The built-in Plym-like task: the first ``classes`` (default all 8) rendered solids x 15 views
     (no files needed)."""
-    images, labels, names, positions = plym_images(size, seed)
-    task = Task("plym", images, labels, names, positions)
-    if classes is None:
-        return task
-    if not 2 <= classes <= len(task.classes()):
-        raise InputError(f"--classes {classes}: the Plym task has 2 to {len(task.classes())} classes")
-    keep = [i for i, label in enumerate(labels) if label in task.classes()[:classes]]
-    return Task("plym", *([getattr(task, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
+    return Task("plym", *plym_images(size, seed)).select(classes, None, 0)
 
 
-def load_task(name: str, data=None, classes: int | None = None, views: int = 20, size: int | None = None,
+def load_task(name: str, data=None, classes: int | None = None, views: int | None = None, size: int | None = None,
               seed: int = 0, first_view: int = 0) -> Task:
-    """The task named on the command line; ``classes`` defaults to 6 for COIL and all 8 for Plym;
-    ``size`` is the Plym image side (default 64) or the reduced COIL side (default: as stored)."""
+    """The task named on the command line (module doc): ``classes`` defaults to 6 for COIL and to
+    all for the others, ``views`` to 20 for COIL and to all for the others; ``size`` is Plym's
+    image side (default 64) or the reduced side of files (default: as stored)."""
     if name == "plym":
-        return plym_task(64 if size is None else size, seed, classes)
-    if classes is None:
-        classes = 6
+        if data is not None:
+            raise InputError("--data: the plym task renders its own images; it takes no image folder")
+        return plym_task(64 if size is None else size, seed).select(classes, views, first_view)
     if data is None:
         raise InputError(f"--task {name} needs --data DIR")
     if name == "coil":
-        return coil_task(data, classes, views, first_view, size)
+        return coil_task(data, 6 if classes is None else classes, 20 if views is None else views, first_view, size)
     if name == "folder":
-        if size is not None:
-            raise InputError("--size applies to --task coil and plym, not to class folders")
-        return folder_task(data)
+        _check_size(size)
+        task = folder_task(data).select(classes, views, first_view)
+        return task if size is None else replace(task, images=[reduced(path, size) for path in task.images])
     raise InputError(f"--task {name!r}: expected coil, folder or plym")

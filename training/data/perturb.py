@@ -29,6 +29,8 @@ from scipy.ndimage import binary_fill_holes
 from ftorch.checkpoint import write_atomic
 from ftorch.errors import InputError
 from ftorch.images import to_uint8
+from training.cli.outputs import Ledger
+from training.data.datasets import IMAGE_SUFFIXES
 
 KINDS = ("rotate", "clutter", "occlude", "pair")
 MASK_THRESHOLD = 0.05
@@ -62,19 +64,28 @@ def mask(image: torch.Tensor) -> torch.BoolTensor:
     return torch.from_numpy(binary_fill_holes(opened))
 
 
-def save_examples(images: list[torch.Tensor], names: list[str], folder, limit: int | None = None) -> list[Path]:
-    """Write the first ``limit`` (default all) images as 8-bit PNGs ``folder/<name>.png``, each
-    atomically; returns their paths."""
+def save_examples(images: list[torch.Tensor], names: list[str], folder, limit: int | None = None,
+                  ledger: Ledger | None = None) -> list[Path]:
+    """Write the first ``limit`` (default all) images as 8-bit PNGs ``folder/<name>.png`` (a name's own
+    image suffix replaced, its folders joined by _), each atomically, recorded in ``ledger`` first
+    where given; returns their paths."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for image, name in list(zip(images, names))[:limit]:
-        path = folder / f"{name.replace('/', '_')}.png"
+    chosen = list(zip(images, names))[:limit]
+    paths = [folder / f"{_stem(name).replace('/', '_')}.png" for _, name in chosen]
+    if ledger is not None:
+        ledger.files(*paths)
+    for (image, _), path in zip(chosen, paths):
         encoded, png = cv2.imencode(".png", to_uint8(image))
         if not encoded:
             raise OSError(f"{path}: could not encode the PNG")
-        paths.append(write_atomic(path, png.tobytes()))
+        write_atomic(path, png.tobytes())
     return paths
+
+
+def _stem(name: str) -> str:
+    """A view's name without the image suffix of its file (``cls/a.png`` -> ``cls/a``)."""
+    return name[: -len(Path(name).suffix)] if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
 
 
 def _array(image: torch.Tensor) -> np.ndarray:

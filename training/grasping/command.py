@@ -16,8 +16,8 @@ from ftorch.grasp.learner import FINGER_CHOICES, MU0_CAP, GraspLearner
 from training.cli.arguments import MAX_SEED, at_least, number, seed
 from training.plots import figure_rgb
 from training.cli.devices import machine, resolve_device
-from training.cli.outputs import run_folder
-from training.cli.parallel import TasksFailed, run_tasks, share_idle_cores
+from training.cli.outputs import RunFolder
+from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
 from training.recognition.report import write_json
 
 from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
@@ -115,7 +115,7 @@ def seed_task(job: dict) -> dict:
     processes and Ray (training/cli/parallel.py)."""
     from torch.utils.tensorboard import SummaryWriter
 
-    args, seed = argparse.Namespace(**job["args"]), job["seed"]
+    args, seed, ledger = argparse.Namespace(**job["args"]), job["seed"], job["ledger"]
     out, logdir = Path(job["out"]), Path(job["logdir"])
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
@@ -142,8 +142,10 @@ def seed_task(job: dict) -> dict:
             pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
                         "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
                         "features": recommended_features(fold, which)}
+            ledger.events(logdir / name)
             with SummaryWriter(str(logdir / name)) as writer:
                 log_fold(writer, {**settings, "mode": mode}, fold, evaluation, pictures)
+            ledger.files(out / f"{name}_features.png")
             save_rgb(out / f"{name}_features.png", pictures["features"])
             figures.append(f"{name}_features.png")
             folds.append({"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
@@ -155,6 +157,7 @@ def seed_task(job: dict) -> dict:
                 print(f"seed {seed} fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} "
                       f"mistakes; {last['features_2']} + {last['features_3']} features")
     offline = evaluations["offline"]
+    ledger.files(*(out / name for name in ("errors.png", "grasps.png", "report.json", "report.md")))
     save_rgb(out / "errors.png", figure_rgb(error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
                                                          f"{args.experiment}, seed {seed}: orientation errors (figure 6.13)")))
     save_rgb(out / "grasps.png", figure_rgb(grasp_figure(grasp_columns(offline, args.experiment),
@@ -179,14 +182,22 @@ def grasp_command(args) -> int:
         raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
     start = time.perf_counter()
     out = Path(args.out or f"runs/grasp-{args.experiment}")
-    out, logdir = run_folder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite,
-                             can_resume=False)
+    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite,
+                   can_resume=False) as folder:
+        reach_ray(args.ray)
+        folder.clear()  # the inputs are checked (the simulator needs no files)
+        return _grasp(args, folder, start)
+
+
+def _grasp(args, folder: RunFolder, start: float) -> int:
+    """The body of :func:`grasp_command` once the run folder is held."""
+    out, logdir = folder.out, folder.logdir
     parallel = args.workers > 1 or args.ray is not None
     settings = {k: v for k, v in vars(args).items() if k != "run"}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
     seeds = range(args.seed, args.seed + args.seeds)
     jobs = [{"args": settings, "seed": s, "out": str(out if s == args.seed else out / f"seed{s}"),
-             "logdir": str(logdir if s == args.seed else logdir / f"seed{s}")} for s in seeds]
+             "logdir": str(logdir if s == args.seed else logdir / f"seed{s}"), "ledger": folder.ledger} for s in seeds]
     try:
         reports = run_tasks(seed_task, jobs, [f"seed {s}" for s in seeds], args.workers, args.ray, progress=not args.quiet)
     except TasksFailed as failed:
@@ -196,6 +207,7 @@ def grasp_command(args) -> int:
     if args.seeds > 1:
         report["seeds"] = seed_study(reports)
         report["seconds"] = time.perf_counter() - start
+        folder.ledger.files(out / "reductions.png")
         save_rgb(out / "reductions.png", figure_rgb(reduction_figure(report["seeds"],
                                                                      f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}")))
         report["figures"] = [*report["figures"], "reductions.png"]

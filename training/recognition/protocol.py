@@ -38,7 +38,7 @@ from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, save_
 from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.space.features import unpack_features
-from ftorch.recognition.learner import OPTIONS, DistinctiveFeatureLearner
+from ftorch.recognition.learner import GENERATOR_STATE, OPTIONS, DistinctiveFeatureLearner
 from ftorch.recognition.inference import Recognition, accuracy, outcome
 
 OUTCOMES = ("correct", "wrong", "ambiguous", "confused", "ignorant")
@@ -189,6 +189,7 @@ class Fold:
     progress: bool = True
     logger: object = None
     incremental: bool = False
+    finished_before: bool = field(default=False, init=False)  # resumed from a checkpoint of a fold that had ended
 
     def taught(self, phase: int) -> list:
         """The classes trained on in ``phase``: all of them, or the first phase + 2 (alg. 5.4)."""
@@ -228,7 +229,7 @@ class Fold:
             features = unpack_features(data["features"])
             self.train.load_cache_state(data["cache"], features)  # first: the learner's instance values refer to it
             learner.load_state_dict(data["learner"], features, env=self.train)
-            order.set_state(torch.from_numpy(decode_array(data["order"]).astype(np.uint8)))
+            order.set_state(torch.from_numpy(decode_array(data["order"], shape=GENERATOR_STATE).astype(np.uint8)))
             state = FoldState.from_dict(data["state"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
@@ -244,6 +245,7 @@ class Fold:
         ``before_cycle()`` before each cycle (the runner's workers take idle cores there)."""
         if resume and self.checkpoint.is_file():
             learner, order, state = self._resume()
+            self.finished_before = state.done
         else:
             learner = self.config.learner(self.fold)
             order = torch.Generator().manual_seed(self.config.fold_seed(self.fold))

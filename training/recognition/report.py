@@ -66,8 +66,7 @@ def growth(folds: list[dict]) -> dict:
     curves = {f["fold"]: _sampled_curve(f) for f in folds}
     pooled = [p for points in curves.values() for p in points]
     out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): _power_fit(v) for k, v in curves.items()}}
-    out.update(_power_fit(pooled) if len(pooled) > 1 else
-               {"exponent": math.nan, "interval": [math.nan, math.nan], "scale": math.nan, "points": len(pooled)})
+    out.update(_power_fit(pooled))
     return out
 
 
@@ -78,11 +77,15 @@ def _sampled_curve(fold: dict) -> list[tuple[int, int]]:
 
 def _power_fit(points: list[tuple[int, int]]) -> dict:
     """Least-squares line on log-log: its slope b, its scale a = exp(intercept) and a 95% interval of
-    b from the slope's standard error."""
+    b from the slope's standard error. Not available (None) with fewer than two class counts (an
+    incremental run of two classes has one), and the interval not with fewer than three points."""
+    if len({p[0] for p in points}) < 2:
+        return {"exponent": None, "interval": [None, None], "scale": None, "points": len(points)}
     x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
     line = stats.linregress(x, y)
-    half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else math.nan
-    return {"exponent": float(line.slope), "interval": [float(line.slope) - half, float(line.slope) + half],
+    half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else None
+    return {"exponent": float(line.slope),
+            "interval": [None, None] if half is None else [float(line.slope) - half, float(line.slope) + half],
             "scale": float(np.exp(line.intercept)), "points": len(points)}
 
 
@@ -91,11 +94,14 @@ def growth_over_seeds(runs: list[dict], seeds: list[int]) -> dict:
     fit (:func:`_power_fit`), their mean and a 95% t-interval of the mean over seeds (n - 1 df), the
     spread that a single run's slope interval does not show."""
     curves = [_sampled_curve(r) for r in runs]
-    exponents = np.array([_power_fit(c)["exponent"] for c in curves])
-    mean = float(exponents.mean())
-    half = float(stats.t.ppf(0.975, len(runs) - 1) * exponents.std(ddof=1) / math.sqrt(len(runs)))
-    return {"seeds": seeds, "fold": runs[0]["fold"], "exponents": [float(b) for b in exponents], "mean": mean,
-            "interval": [mean - half, mean + half], "sampled": {str(k): c for k, c in zip(seeds, curves)}}
+    exponents = [_power_fit(c)["exponent"] for c in curves]
+    mean, interval = None, [None, None]  # not available where a seed's fit is not
+    if None not in exponents:
+        mean = float(np.mean(exponents))
+        half = float(stats.t.ppf(0.975, len(runs) - 1) * np.std(exponents, ddof=1) / math.sqrt(len(runs)))
+        interval = [mean - half, mean + half]
+    return {"seeds": seeds, "fold": runs[0]["fold"], "exponents": exponents, "mean": mean,
+            "interval": interval, "sampled": {str(k): c for k, c in zip(seeds, curves)}}
 
 
 def seed_study(runs: list[dict], seeds: list[int]) -> dict:
@@ -123,8 +129,26 @@ def _novice(run: dict) -> dict:
     return next(s for s in run["stages"] if s.get("classes") == final)
 
 
+def json_ready(value):
+    """``value`` with every NaN or infinity replaced by None: JSON has no such numbers (Python's
+    ``NaN`` is not JSON), so a figure that is not available is null in every report."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    return value
+
+
 def write_json(path: Path, report: dict) -> None:
-    write_text(path, json.dumps(report, indent=2) + "\n")
+    """``report`` as JSON (:func:`json_ready`: null where a figure is not available)."""
+    write_text(path, json.dumps(json_ready(report), indent=2, allow_nan=False) + "\n")
+
+
+def shown(value, spec: str = ".2f") -> str:
+    """A figure as text: "n/a" where it is not available (None, or NaN before it is written)."""
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
 def _p(value: float) -> str:
@@ -282,9 +306,10 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
         if "growth" in report:
             g = report["growth"]
             lines += ["## Growth of the features sampled with the classes (figure 5.19)", "",
-                      f"sampled so far ~ classes^b: b = {g['exponent']:.2f} (95% interval {g['interval'][0]:.2f} "
-                      f"to {g['interval'][1]:.2f}, {g['points']} points of all folds; b > 1 is superlinear); per fold: "
-                      + ", ".join(f"fold {k} {v['exponent']:.2f}" for k, v in g["folds"].items()), ""]
+                      f"sampled so far ~ classes^b: b = {shown(g['exponent'])} (95% interval {shown(g['interval'][0])} "
+                      f"to {shown(g['interval'][1])}, {g['points']} points of all folds; b > 1 is superlinear; not "
+                      "available (n/a) with fewer than two class counts, the interval with fewer than three points); "
+                      "per fold: " + ", ".join(f"fold {k} {shown(v['exponent'])}" for k, v in g["folds"].items()), ""]
     if "peers" in report:
         mean, final = report["peers"]["average"], report["average"]["final"]["test"]["accuracy"]
         lines += ["## Peers on the same splits (clean test views, mean over folds)", "",
@@ -303,12 +328,14 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                   f"{s['expert']['mean']:.3f} +- {s['expert']['sd']:.3f} |",
                   f"| features queried, mean +- sd | {s['novice_queried']['mean']:.1f} +- {s['novice_queried']['sd']:.1f} | "
                   f"{s['expert_queried']['mean']:.1f} +- {s['expert_queried']['sd']:.1f} |", "",
-                  f"Paired one-tailed t-test, expert > novice: t = {s['t']:.2f}, p = {s['p']:.2g}.", ""]
+                  f"Paired one-tailed t-test, expert > novice: t = {shown(s['t'])}, p = {shown(s['p'], '.2g')}"
+                  + (" (not available: expert and novice differ by the same amount on every seed, e.g. not at all)"
+                     if shown(s["p"]) == "n/a" else "") + ".", ""]
         if "growth" in s:
             g = s["growth"]
             lines += [f"Growth of the features sampled with the classes (figure 5.19), fold {g['fold']}: classes^b with "
-                      f"b = {g['mean']:.2f} on average over the seeds (95% interval {g['interval'][0]:.2f} to "
-                      f"{g['interval'][1]:.2f}); per seed: " + ", ".join(f"{k} {b:.2f}" for k, b in zip(g["seeds"], g["exponents"])), ""]
+                      f"b = {shown(g['mean'])} on average over the seeds (95% interval {shown(g['interval'][0])} to "
+                      f"{shown(g['interval'][1])}); per seed: " + ", ".join(f"{k} {shown(b)}" for k, b in zip(g["seeds"], g["exponents"])), ""]
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
                   "(figure 5.1 form; growth.png: figure 5.19 for incremental runs).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]

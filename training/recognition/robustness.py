@@ -19,6 +19,7 @@ from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.space.record import FeatureSpace
 
+from ..cli.outputs import Ledger
 from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score
 from ..data.perturb import KINDS, perturb, save_examples
@@ -104,8 +105,9 @@ def learner_storage(learner: DistinctiveFeatureLearner) -> dict:
 
 
 def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, kinds: list[str], seed: int,
-                    space: FeatureSpace, peers: bool, out: Path | None, progress: bool) -> dict:
-    """One fold: the learner (and peers) on every set; perturbed images saved under ``out``/KIND."""
+                    space: FeatureSpace, peers: bool, out: Path | None, progress: bool, ledger: Ledger | None = None) -> dict:
+    """One fold: the learner (and peers) on every set; perturbed images saved under ``out``/KIND,
+    each recorded in the run's ``ledger`` first where the output lies in the run folder."""
     train, test = task.fold(fold)
     classes = task.classes()
     names = [task.names[i] for i in test]
@@ -113,8 +115,10 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
     if out is not None:
         for name, (images, _) in sets.items():
             if name != "clean":
-                save_examples(images, names, out / f"fold{fold}" / name)
+                save_examples(images, names, out / f"fold{fold}" / name, ledger=ledger)
         (out / f"fold{fold}").mkdir(parents=True, exist_ok=True)
+        if ledger is not None:
+            ledger.files(out / f"fold{fold}" / "overview.png")
         save_rgb(out / f"fold{fold}" / "overview.png", overview(task, sets, test, f"{task.name}, fold {fold}, perturbation seed {seed}"))
     start = time.perf_counter()
     result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
