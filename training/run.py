@@ -339,11 +339,11 @@ def recognize_command(args, incremental: bool = False) -> int:
     out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
     with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
         args.checkpoints = out = folder.out  # where an interrupted run continues from (main)
+        reach_ray(args.ray)
         torch.manual_seed(args.seed)
         _LOADED.clear()  # each command loads its data afresh
         task, _ = _loaded(args, device)
         check_inputs(task, args.folds, args.augment, device)
-        reach_ray(args.ray)
         folder.clear()  # the inputs are good: only now is an old run replaced
         return _recognize(args, incremental, device, task, folder, start)
 
