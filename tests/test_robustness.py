@@ -217,6 +217,7 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
                  for row in report["folds"][0]["stages"][-1]["confusion"].values())
     assert len(list((tmp_path / "a" / "fold1" / "occlude").glob("*.png"))) == tested == 14  # 7 test views per class
     assert (tmp_path / "a" / "fold1" / "overview.png").is_file()
+    check_node_rows(out, result, tmp_path / "a")
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     again = json.loads((tmp_path / "b" / "robustness.json").read_text())
     assert again["average"] == result["average"]  # same seed, same report
@@ -234,3 +235,41 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 3 and "--perturb 'blur'" in errors[0] and "not a run folder" in errors[1]
     assert "test_information must lie in [0, 1)" in errors[2]
+
+
+def check_node_rows(run_folder, result: dict, out) -> None:
+    """Every node's firing rates, counted here one view at a time from its value and its cut-point,
+    equal the benchmark's rows; the per-type table pools them; the report shows both."""
+    from ftorch import FeatureSpace
+    from ftorch.recognition.environment import ImageSet
+    from ftorch.recognition.learner import DistinctiveFeatureLearner
+    from ftorch.images import load_image
+    from training.data.datasets import plym_task
+
+    learner = DistinctiveFeatureLearner.load(run_folder / "fold1" / "learner.json")
+    task = plym_task(size=32, classes=2)
+    _, test = task.fold(1)
+    names = [task.names[i] for i in test]
+    occluded = [load_image(out / "fold1" / "occlude" / f"{name}.png") for name in names]
+    space = FeatureSpace()
+    sets = {"clean": [task.images[i] for i in test], "occlude": occluded}
+    labels = [task.labels[i] for i in test]
+    rows = result["folds"][0]["nodes"]
+    held = [(net, f) for net in learner.networks.values() for f in net.features]
+    assert len(rows) == len(held) > 0
+    for name, images in sets.items():
+        if name == "occlude":
+            continue  # saved as 8-bit PNGs: rounding may move a value across its cut-point; clean is exact
+        for (net, f), row in zip(held, rows):
+            states = [float(ImageSet([image], [{0}], space).values([f], [0])[0, 0]) > net.threshold[f] for image in images]
+            own = [s for s, l in zip(states, labels) if l == net.label]
+            other = [s for s, l in zip(states, labels) if l != net.label]
+            assert row["own"][name] == pytest.approx(np.mean(own)) and row["other"][name] == pytest.approx(np.mean(other))
+            assert row["class"] == str(net.label) and 0 <= row["flipped"]["occlude"] <= 1
+    types = result["average"]["types"]
+    assert sum(t["nodes"] for t in types.values()) == len(rows)
+    for kind, t in types.items():
+        of_kind = [r for r in rows if r["type"] == kind]
+        assert t["own"]["clean"] == pytest.approx(np.mean([r["own"]["clean"] for r in of_kind]))
+    text = (out / "robustness.md").read_text()
+    assert "## Which features survive" in text and "## Every node" in text and (out / "features.png").is_file()

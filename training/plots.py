@@ -135,3 +135,36 @@ def _interval(interval: list[float]) -> str:
     """The text " (95% low-high)", or none where too few points gave no interval."""
     low, high = interval
     return "" if low is None else f" (95% {low:.2f}-{high:.2f})"
+
+
+def feature_types_figure(types: dict, title: str) -> Figure:
+    """The robustness benchmark's per-type table (``average.types``) as two panels: how often each
+    feature type's nodes fire on their own class per set (bars; the false-alarm rate on the other
+    classes as a black tick), and how often their states flip under each perturbation."""
+    kinds = sorted(types, key=lambda k: -types[k]["nodes"])
+    sets = list(types[kinds[0]]["own"])
+    flips = list(types[kinds[0]]["flipped"])
+    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5), dpi=100, gridspec_kw={"width_ratios": [len(sets), max(1, len(flips))]})
+    width = 0.8 / len(kinds)
+    for j, kind in enumerate(kinds):
+        t = types[kind]
+        at = np.arange(len(sets)) + (j - (len(kinds) - 1) / 2) * width
+        left.bar(at, [t["own"][n] or 0 for n in sets], width, label=f"{kind} ({t['nodes']} node{'s' * (t['nodes'] != 1)})")
+        left.scatter(at, [t["other"][n] or 0 for n in sets], marker="_", color="k", s=60, zorder=3,
+                     label="present on other classes" if j == 0 else None)
+        at = np.arange(len(flips)) + (j - (len(kinds) - 1) / 2) * width
+        right.bar(at, [t["flipped"][n] or 0 for n in flips], width)
+    left.set_xticks(range(len(sets)), sets)
+    left.set_ylabel("share of own-class views where present")
+    left.set_ylim(0, 1)
+    left.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3)
+    left.set_title("nodes present on their own class", fontsize=10)
+    right.set_xticks(range(len(flips)), flips)
+    right.set_ylabel("share of node states flipped vs clean")
+    right.set_ylim(0, 1)
+    right.set_title("nodes flipped by the perturbation", fontsize=10)
+    for ax in (left, right):
+        ax.grid(alpha=0.3, axis="y")
+    figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    return figure

@@ -54,9 +54,9 @@ from training.cli.devices import described, machine, resolve_device
 from training.cli.outputs import Ledger, RunFolder, locked, writable_folder
 from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.plots import curves_figure, figure_rgb, fold_curves_figure, growth_figure
+from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure
 from training.grasping.command import add_parser as add_grasp_parser
-from training.recognition.robustness import SETS, average as average_robustness, fold_robustness, split_peers, table as robustness_table
+from training.recognition.robustness import SETS, average as average_robustness, feature_tables, fold_robustness, split_peers, table as robustness_table
 from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, shown, write_json, write_markdown
 
 
@@ -522,15 +522,20 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
               "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
               "average": average_robustness(results), "machine": machine(device),
               "seconds": time.perf_counter() - start}
+    types = result["average"].get("types")
     if ledger is not None:
-        ledger.files(out / "robustness.json", out / "robustness.md")
+        ledger.files(out / "robustness.json", out / "robustness.md", *([out / "features.png"] if types else []))
     write_json(out / "robustness.json", result)
+    if types:
+        save_rgb(out / "features.png", figure_rgb(feature_types_figure(types, f"{run}: which features survive, "
+                                                                              f"perturbation seed {args.seed}")))
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
              f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the "
              "ignorant share (def. 4.5), "
              "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
              "the clean view's.", "", *robustness_table(result), "",
-             *[f"![fold {k}](fold{k}/overview.png)" for k in folds], ""]
+             *[f"![fold {k}](fold{k}/overview.png)" for k in folds], "", *feature_tables(result),
+             *(["![which features survive](features.png)", ""] if types else [])]
     write_text(out / "robustness.md", "\n".join(lines))
     print("\n".join(robustness_table(result)))
     print(f"report: {out / 'robustness.md'} and {out / 'robustness.json'}; perturbed images in {out}/foldK/SET/")

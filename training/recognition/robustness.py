@@ -17,6 +17,7 @@ import numpy as np
 from ftorch.space.draw import grid, panel, save_rgb, titled
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.space.features import Geometric
 from ftorch.space.record import FeatureSpace
 
 from ..cli.outputs import Ledger
@@ -63,11 +64,12 @@ def peer_results(train_images: list, train_labels: list[frozenset], sets: dict, 
 
 
 def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: list, space: FeatureSpace,
-                    progress: bool) -> dict:
+                    progress: bool) -> tuple[dict, dict]:
     """set -> the learner's test block (def. 4.6 and 4.5), features queried per image and, where
     the clean views were recognized too, ``flipped``: the share of (network node, view) whose state
     (value above the node's cut-point) differs from the clean view's, a measure of how stable the
-    features are under the perturbation."""
+    features are under the perturbation; and set -> (node states (nodes, views), labels), for
+    :func:`node_rows`."""
     out, states = {}, {}
     held = nodes(learner)
     for name, (images, labels) in sets.items():
@@ -76,12 +78,55 @@ def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: lis
         out[name] = {**test_block(recognitions, env.labels, classes),
                      "queried": float(np.mean([len(r.queried) for r in recognitions]))}
         if held:
-            states[name] = node_states(held, env)
-            out[name].update(presence(held, states[name], env.labels))
+            states[name] = (node_states(held, env), env.labels)
+            out[name].update(presence(held, *states[name]))
     for name in out:
         if name != "clean" and "clean" in states:
-            out[name]["flipped"] = float((states[name] != states["clean"]).mean())
+            out[name]["flipped"] = float((states[name][0] != states["clean"][0]).mean())
+    return out, states
+
+
+def feature_type(feature) -> str:
+    """A node's type in the per-feature tables: texel, edgel pair (alg. 4.10 method 2), geometric
+    compound of N parts (method 3), conjunction, disjunction."""
+    if isinstance(feature, Geometric):
+        return "edgel pair" if feature.describe() == "geometric: edgel-edgel" else f"geometric, {len(feature.parts)} parts"
+    return feature.TYPE
+
+
+def node_rows(held: list, states: dict) -> list[dict]:
+    """Per network node (4.4.1): how often it fires (is present) on views of its own class and of
+    the others, on every set (``train``: the training views its cut-point was set on), and how
+    often its state differs from the clean view's under each perturbation (``flipped``)."""
+    rows = []
+    number = {}
+    for k, (net, feature) in enumerate(held):
+        number[net.label] = number.get(net.label, 0) + 1
+        row = {"class": str(net.label), "node": number[net.label], "type": feature_type(feature), "own": {}, "other": {},
+               "flipped": {}}
+        for name, (state, labels) in states.items():
+            own = np.array([net.label in l for l in labels])
+            row["own"][name] = float(state[k, own].mean()) if own.any() else None
+            row["other"][name] = float(state[k, ~own].mean()) if (~own).any() else None
+            if name not in ("clean", "train") and "clean" in states:
+                row["flipped"][name] = float((state[k] != states["clean"][0][k]).mean())
+        rows.append(row)
+    return rows
+
+
+def type_table(rows: list[dict]) -> dict:
+    """:func:`node_rows` pooled by feature type: the node count and each rate's mean over the nodes."""
+    out = {}
+    for kind in dict.fromkeys(r["type"] for r in rows):
+        of_kind = [r for r in rows if r["type"] == kind]
+        out[kind] = {"nodes": len(of_kind), **{rate: {name: _mean([r[rate][name] for r in of_kind]) for name in of_kind[0][rate]}
+                                               for rate in ("own", "other", "flipped")}}
     return out
+
+
+def _mean(values: list) -> float | None:
+    known = [v for v in values if v is not None]
+    return float(np.mean(known)) if known else None
 
 
 def node_states(held: list, env: ImageSet) -> np.ndarray:
@@ -121,14 +166,16 @@ def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, k
             ledger.files(out / f"fold{fold}" / "overview.png")
         save_rgb(out / f"fold{fold}" / "overview.png", overview(task, sets, test, f"{task.name}, fold {fold}, perturbation seed {seed}"))
     start = time.perf_counter()
-    result = {"fold": fold, "ours": learner_results(learner, sets, classes, space, progress),
-              "storage": learner_storage(learner)}
+    ours, states = learner_results(learner, sets, classes, space, progress)
+    result = {"fold": fold, "ours": ours, "storage": learner_storage(learner)}
     result["seconds"] = {"ours": time.perf_counter() - start}
     training = views(task, train)
     held = nodes(learner)
     if held:  # the same on the training views, where the cut-points were set
         trained = ImageSet(*training, space)
-        result["train"] = presence(held, node_states(held, trained), trained.labels)
+        states = {"train": (node_states(held, trained), trained.labels), **states}
+        result["train"] = presence(held, *states["train"])
+        result["nodes"] = node_rows(held, states)
     if peers:
         start = time.perf_counter()
         result["peers"] = peer_results(*training, sets, classes)
@@ -143,6 +190,8 @@ def average(folds: list[dict]) -> dict:
     out = {"ours": {s: mean([f["ours"][s] for f in folds]) for s in folds[0]["ours"]}}
     if all("train" in f for f in folds):
         out["train"] = mean([f["train"] for f in folds])
+    if all("nodes" in f for f in folds):
+        out["types"] = type_table([r for f in folds for r in f["nodes"]])
     if "peers" in folds[0]:
         out["peers"] = {p: {s: mean([f["peers"][p][s] for f in folds]) for s in folds[0]["peers"][p]
                             if isinstance(folds[0]["peers"][p][s], dict)} for p in PEERS}
@@ -170,6 +219,34 @@ def table(result: dict) -> list[str]:
         if "peers" in avg:
             rows.append(row(name, avg["peers"][peer]))
     return head + rows
+
+
+def feature_tables(result: dict) -> list[str]:
+    """Markdown: every feature type's nodes, how often they fire on their own class and on the others
+    per set, and how often they flip under each perturbation (all folds pooled); then every node."""
+    types = result["average"].get("types")
+    if not types:
+        return []
+    sets = list(next(iter(types.values()))["own"])
+    flips = list(next(iter(types.values()))["flipped"])
+
+    def cells(block: dict, names: list) -> str:
+        return " | ".join("" if block[n] is None else f"{block[n]:.2f}" for n in names)
+    lines = ["## Which features survive (per feature type, all folds)", "",
+             "Share of views on which a type's nodes are present: on their own class (recall) and on the other "
+             "classes (false alarms), per set (train: the training views their cut-points were set on); and the "
+             "share of (node, view) states that differ from the clean view's under each perturbation.", "",
+             "| type | nodes | " + " | ".join(f"own: {n}" for n in sets) + " | " + " | ".join(f"other: {n}" for n in sets)
+             + " | " + " | ".join(f"flipped: {n}" for n in flips) + " |",
+             "|---|---|" + "---|" * (2 * len(sets) + len(flips))]
+    lines += [f"| {kind} | {t['nodes']} | {cells(t['own'], sets)} | {cells(t['other'], sets)} | {cells(t['flipped'], flips)} |"
+              for kind, t in sorted(types.items(), key=lambda kv: -kv[1]["nodes"])]
+    lines += ["", "## Every node", "", "| fold | class | node | type | " + " | ".join(f"own: {n}" for n in sets)
+              + " | other: clean | " + " | ".join(f"flipped: {n}" for n in flips) + " |",
+              "|---|---|---|---|" + "---|" * (len(sets) + 1 + len(flips))]
+    lines += [f"| {f['fold']} | {r['class']} | {r['node']} | {r['type']} | {cells(r['own'], sets)} | "
+              f"{cells(r['other'], ['clean'])} | {cells(r['flipped'], flips)} |" for f in result["folds"] for r in f.get("nodes", [])]
+    return lines + [""]
 
 
 def overview(task: Task, sets: dict, test: list[int], heading: str) -> np.ndarray:
