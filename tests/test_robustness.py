@@ -262,8 +262,8 @@ def check_node_rows(run_folder, result: dict, out) -> None:
             continue  # saved as 8-bit PNGs: rounding may move a value across its cut-point; clean is exact
         for (net, f), row in zip(held, rows):
             states = [float(ImageSet([image], [{0}], space).values([f], [0])[0, 0]) > net.threshold[f] for image in images]
-            own = [s for s, l in zip(states, labels) if l == net.label]
-            other = [s for s, l in zip(states, labels) if l != net.label]
+            own = [s for s, truth in zip(states, labels) if truth == net.label]
+            other = [s for s, truth in zip(states, labels) if truth != net.label]
             assert row["own"][name] == pytest.approx(np.mean(own)) and row["other"][name] == pytest.approx(np.mean(other))
             assert row["class"] == str(net.label) and 0 <= row["flipped"]["occlude"] <= 1
     types = result["average"]["types"]

@@ -105,7 +105,7 @@ def node_rows(held: list, states: dict) -> list[dict]:
         row = {"class": str(net.label), "node": number[net.label], "type": feature_type(feature), "own": {}, "other": {},
                "flipped": {}}
         for name, (state, labels) in states.items():
-            own = np.array([net.label in l for l in labels])
+            own = np.array([net.label in names for names in labels])
             row["own"][name] = float(state[k, own].mean()) if own.any() else None
             row["other"][name] = float(state[k, ~own].mean()) if (~own).any() else None
             if name not in ("clean", "train") and "clean" in states:
