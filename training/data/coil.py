@@ -12,7 +12,6 @@ every COIL command.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import zipfile
 from pathlib import Path

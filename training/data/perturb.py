@@ -47,7 +47,7 @@ def perturb(images: list[torch.Tensor], labels: list[frozenset], kind: str,
     if len(images) != len(labels):
         raise InputError(f"{len(images)} images but {len(labels)} label sets")
     rng = np.random.default_rng([seed, KINDS.index(kind)])
-    labels = [frozenset(l) for l in labels]
+    labels = [frozenset(names) for names in labels]
     if kind == "pair":
         return _pair(images, labels, rng)
     change = {"rotate": rotate, "clutter": _clutter, "occlude": _occlude}[kind]
@@ -162,7 +162,7 @@ def _pair(images: list[torch.Tensor], labels: list[frozenset],
         raise InputError(f"pair: all views need the same shape, got {sorted(shapes)}")
     out, true = [], []
     for i, image in enumerate(images):
-        others = [j for j, l in enumerate(labels) if not l & labels[i]]
+        others = [j for j, names in enumerate(labels) if not names & labels[i]]
         if not others:
             raise InputError(f"pair: view {i} ({', '.join(map(str, labels[i]))}) has no view of another class to pair with")
         j = others[rng.integers(len(others))]

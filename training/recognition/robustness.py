@@ -56,7 +56,7 @@ def peer_results(train_images: list, train_labels: list[frozenset], sets: dict, 
     out = {"pixel_nn": {"bytes_per_class": nn.storage_per_class(), "views_per_class": len(train_images) / len(classes)},
            "sift": {"bytes_per_class": sift.storage_per_class(), "descriptors_per_view": sift.descriptors_per_view()}}
     for name, (images, labels) in sets.items():
-        two = max(len(l) for l in labels)
+        two = max(len(names) for names in labels)
         if all(nn.supports(tuple(x.shape)) for x in images):
             out["pixel_nn"][name] = score(nn.predict(images), labels, classes)
         out["sift"][name] = score(sift.predict(images, n_classes=two), labels, classes)
@@ -138,7 +138,7 @@ def node_states(held: list, env: ImageSet) -> np.ndarray:
 def presence(held: list, states: np.ndarray, labels: list[frozenset]) -> dict:
     """How often a class network's nodes are present on views of that class (``present_own``) and of
     other classes (``present_other``): the features' recall and false-alarm rate."""
-    own = np.array([[net.label in l for l in labels] for net, _ in held])
+    own = np.array([[net.label in names for names in labels] for net, _ in held])
     return {"present_own": float(states[own].mean()) if own.any() else 0.0,
             "present_other": float(states[~own].mean()) if (~own).any() else 0.0}
 
