@@ -129,10 +129,14 @@ def test_save_examples_writes_8_bit_pngs(tmp_path):
     assert read.dtype == np.uint8 and np.array_equal(read, (images[0].numpy() * 255).round().astype(np.uint8))
 
 
+def u8(image: torch.Tensor) -> np.ndarray:
+    """An image in [0, 1] as 8-bit pixels, independently of the product's conversion."""
+    return (image.numpy() * 255).round().astype(np.uint8)
+
+
 def bf_good_matches(image: torch.Tensor, training: list[torch.Tensor], ratio: float = 0.75) -> list[int]:
     """Lowe's ratio test with cv2.BFMatcher, view by view."""
     sift = cv2.SIFT_create()
-    u8 = lambda x: (x.numpy() * 255).round().astype(np.uint8)
     _, query = sift.detectAndCompute(u8(image), None)
     counts = []
     for t in training:
@@ -160,10 +164,10 @@ def test_baselines_recognize_copies_and_shifted_views_and_sift_names_both_classe
     assert not nn.supports(pair.shape) and nn.supports(train[0].shape)
     with pytest.raises(InputError, match="supports"):
         nn.predict([pair])
-    assert nn.storage_per_class() == 2 * 64 * 64 * 4
-    counts = [len(cv2.SIFT_create().detectAndCompute((x.numpy() * 255).round().astype(np.uint8), None)[0]) for x in train]
+    assert nn.storage_per_class() == 2 * 64 * 64  # one byte per pixel
+    counts = [len(cv2.SIFT_create().detectAndCompute(u8(x), None)[0]) for x in train]
     assert sift.descriptors_per_view() == pytest.approx(np.mean(counts))
-    assert sift.storage_per_class() == pytest.approx(np.mean([sum(counts[2 * c:2 * c + 2]) * 512 for c in range(3)]))
+    assert sift.storage_per_class() == pytest.approx(np.mean([sum(counts[2 * c:2 * c + 2]) * 128 for c in range(3)]))
 
 
 def test_batched_sift_matching_equals_bfmatcher_view_by_view():
@@ -180,7 +184,7 @@ def test_batched_sift_matching_equals_bfmatcher_view_by_view():
 def test_sift_ratio_test_is_per_view_and_skips_views_with_one_descriptor(monkeypatch):
     e = torch.eye(128, dtype=torch.float32)
     found = {0: e[:1], 1: torch.stack([e[0], 10 * e[1]]), 2: torch.stack([2 * e[1], 2.1 * e[1]]), 9: e[:1]}
-    monkeypatch.setattr("training.recognition.peers._descriptors", lambda image: found[int(image[0, 0])].numpy())
+    monkeypatch.setattr("training.recognition.peers.sift_descriptors", lambda image: found[int(image[0, 0])].numpy())
     training = [torch.full((4, 4), float(k)) for k in range(3)]
     sift = SiftMatcher().fit(training, [frozenset({k}) for k in "abc"])
     # view a holds 1 descriptor (no ratio test), b a perfect match, c two neighbours at ratio 0.96
