@@ -168,3 +168,43 @@ def feature_types_figure(types: dict, title: str) -> Figure:
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()
     return figure
+
+
+METHODS = {"ftorch": ("ftorch", "o", "C0"), "sift": ("SIFT, ratio per view", "s", "C1"),
+           "sift_across": ("SIFT, ratio across classes", "D", "C3"), "pixel_nn": ("pixel 1-NN", "^", "C2")}
+
+
+def tradeoff_figure(result: dict, title: str) -> Figure:
+    """The accuracy-per-byte front (training/recognition/tradeoff.py): mean accuracy over the sets,
+    then accuracy per set, against bytes stored per class (log axis), one line per method through
+    its settings in order of bytes, each point named by its setting; the 4 kB budget dashed."""
+    sets = result["sets"]
+    panels = [("mean over the sets", "mean"), *[(s, s) for s in sets]]
+    cols = min(3, len(panels))
+    rows = -(-len(panels) // cols)
+    figure, axes = plt.subplots(rows, cols, figsize=(5 * cols, 4 * rows), dpi=100, squeeze=False)
+    for ax, (heading, key) in zip(axes.flat, panels):
+        for method, (name, marker, colour) in METHODS.items():
+            points = sorted((p for p in result["points"] if p["method"] == method
+                             and (key == "mean" or key in p["accuracy"])), key=lambda p: p["bytes_per_class"])
+            if not points:
+                continue
+            ys = [p["mean"] if key == "mean" else p["accuracy"][key] for p in points]
+            ax.plot([p["bytes_per_class"] for p in points], ys, marker=marker, color=colour, label=name)
+            if key == "mean":
+                for p, y in zip(points, ys):
+                    ax.annotate(p["setting"].replace(" keypoints", "").replace(" pixels", ""), (p["bytes_per_class"], y),
+                                fontsize=6, xytext=(3, -8), textcoords="offset points")
+        ax.axvline(4096, color="k", linestyle="--", linewidth=0.8)
+        ax.set_xscale("log")
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel("bytes stored per class")
+        ax.set_ylabel("accuracy (def. 4.6)")
+        ax.set_title(heading, fontsize=10)
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8, loc="lower right")
+    figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    return figure

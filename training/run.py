@@ -13,6 +13,9 @@ Commands:
   evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
   robustness --checkpoint RUN [--peers]   a recognize run's learners (and pixel 1-NN, SIFT
                                matching) on rotated, cluttered, occluded and paired test views.
+  tradeoff --runs RUN...       accuracy against bytes stored per class: the runs' learners
+                               packed as binary, SIFT matching with the n strongest keypoints
+                               per view, pixel 1-NN at s x s, on the same (perturbed) views.
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
                                Without images it uses the built-in scene.
@@ -32,7 +35,7 @@ import math  # noqa: E402
 import shutil  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
-from contextlib import nullcontext
+from contextlib import ExitStack, nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -54,9 +57,10 @@ from training.cli.devices import described, machine, resolve_device
 from training.cli.outputs import Ledger, RunFolder, locked, writable_folder
 from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
 from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure
+from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure, tradeoff_figure
 from training.grasping.command import add_parser as add_grasp_parser
 from training.recognition.robustness import SETS, average as average_robustness, feature_tables, fold_robustness, split_peers, table as robustness_table
+from training.recognition.tradeoff import table as tradeoff_table, tradeoff
 from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, shown, write_json, write_markdown
 
 
@@ -542,6 +546,45 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
     return 0
 
 
+def tradeoff_command(args) -> int:
+    """The accuracy-per-byte front of recognize runs against the peers (training/recognition/tradeoff.py)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    device = resolve_device(args.device)
+    kinds = _perturbations(args.perturb)
+    runs = [Path(r) for r in dict.fromkeys(args.runs)]
+    out = Path(args.out)
+    for run in runs:
+        if out.absolute().is_relative_to(run.absolute()) or run.absolute().is_relative_to(out.absolute()):
+            raise InputError(f"--out {out} and --runs {run}: the front is written beside the runs, not inside one")
+    with ExitStack() as held:
+        for run in runs:  # a run still being written is refused, and none changes meanwhile
+            if not run.is_dir():
+                raise InputError(f"--runs {run}: no such run folder")
+            held.enter_context(locked(run, "--runs"))
+        folder = held.enter_context(RunFolder(out, out / "tensorboard", False, args.overwrite, can_resume=False))
+        result = tradeoff(runs, kinds, args.seed, FeatureSpace().to(device), args.data, not args.quiet)
+        folder.clear()
+        result["machine"] = machine(device)
+        heading = (f"{result['task']}, {len(result['classes'])} classes, {len(runs)} run(s), perturbation seed {args.seed}: "
+                   "accuracy against bytes stored per class")
+        folder.ledger.files(out / "tradeoff.json", out / "tradeoff.md", out / "front.png")
+        folder.ledger.events(out / "tensorboard")
+        write_json(out / "tradeoff.json", result)
+        save_rgb(out / "front.png", figure_rgb(tradeoff_figure(result, heading)))
+        lines = [f"# Accuracy per byte: {result['task']}", "", f"Runs {', '.join(result['runs'])}; sets {', '.join(kinds)}; "
+                 f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6), each seed weighted "
+                 "equally; bytes: what each method stores per class (training/recognition/tradeoff.py).", "",
+                 *tradeoff_table(result), "", "![the front](front.png)", ""]
+        write_text(out / "tradeoff.md", "\n".join(lines))
+        with SummaryWriter(str(out / "tensorboard")) as writer:
+            writer.add_figure("tradeoff/front", tradeoff_figure(result, heading), 0)
+            writer.add_text("tradeoff/table", "\n".join(tradeoff_table(result)), 0)
+    print("\n".join(tradeoff_table(result)))
+    print(f"report: {out / 'tradeoff.md'}, {out / 'tradeoff.json'} and {out / 'front.png'}")
+    return 0
+
+
 def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
     p.add_argument("--data", help="image folder (coil: obj{k}__{view}.png files; folder: root/<class>/<image>)")
@@ -634,6 +677,17 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=robustness_command)
+    p = commands.add_parser("tradeoff", help="accuracy against bytes stored per class, against SIFT and pixel 1-NN")
+    p.add_argument("--runs", nargs="+", required=True, metavar="RUN", help="run folders written by recognize on one "
+                   "task (e.g. with different --redundancy); every seed's learners are used")
+    p.add_argument("--data", help="the runs' image folder, where it has moved (default: as recorded in the runs)")
+    p.add_argument("--perturb", default="all", help=f"all (default) or a comma-separated list of {', '.join(SETS)}")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the perturbations (default 0)")
+    p.add_argument("--out", default="runs/tradeoff", help="output folder (default runs/tradeoff)")
+    p.add_argument("--overwrite", action="store_true", help="replace the front already in OUT")
+    p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=tradeoff_command)
     p = commands.add_parser("salient", help="draw salient edgels and texels (figure 3.9)")
     p.add_argument("images", nargs="*", help="image files (default: the built-in scene)")
     p.add_argument("--out", default="runs/salient", help="output folder (default: runs/salient)")
