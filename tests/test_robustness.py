@@ -222,6 +222,10 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     assert len(list((tmp_path / "a" / "fold1" / "occlude").glob("*.png"))) == tested == 14  # 7 test views per class
     assert (tmp_path / "a" / "fold1" / "overview.png").is_file()
     check_node_rows(out, result, tmp_path / "a")
+    from ftorch.recognition.learner import DistinctiveFeatureLearner
+    from ftorch.recognition.packing import pack
+    networks = DistinctiveFeatureLearner.load(out / "fold1" / "learner.json").networks
+    assert result["folds"][0]["storage"]["bytes_per_class"] == len(pack(networks)) / 2
     assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
     again = json.loads((tmp_path / "b" / "robustness.json").read_text())
     assert again["average"] == result["average"]  # same seed, same report

@@ -17,6 +17,7 @@ import numpy as np
 from ftorch.space.draw import grid, panel, save_rgb, titled
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.packing import pack
 from ftorch.space.features import Geometric
 from ftorch.space.record import FeatureSpace
 
@@ -144,9 +145,11 @@ def presence(held: list, states: np.ndarray, labels: list[frozenset]) -> dict:
 
 
 def learner_storage(learner: DistinctiveFeatureLearner) -> dict:
-    """Features per class network: the mean and the largest."""
+    """Features per class network (the mean and the largest) and the bytes recognition needs per
+    class, packed as binary (ftorch.recognition.packing)."""
     sizes = [len(net.features) for net in learner.networks.values()]
-    return {"features_per_class": float(np.mean(sizes)) if sizes else 0.0, "max_features_per_class": max(sizes, default=0)}
+    return {"features_per_class": float(np.mean(sizes)) if sizes else 0.0, "max_features_per_class": max(sizes, default=0),
+            "bytes_per_class": len(pack(learner.networks)) / max(1, len(learner.networks))}
 
 
 def fold_robustness(task: Task, fold: int, learner: DistinctiveFeatureLearner, kinds: list[str], seed: int,
