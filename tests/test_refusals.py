@@ -73,6 +73,13 @@ def test_a_ray_address_of_the_wrong_form_is_refused(address):
         parallel.reach_ray(address)
 
 
+@pytest.mark.parametrize("address", ["local", "auto", "127.0.0.1:6379"])
+def test_ray_not_installed_is_refused_among_the_input_checks(address, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    with pytest.raises(InputError, match=r"^--ray needs Ray: pip install"):
+        parallel.reach_ray(address)
+
+
 def test_a_far_ray_address_times_out(monkeypatch):
     monkeypatch.setattr(parallel, "CONNECT_TIMEOUT", 0.2)
 

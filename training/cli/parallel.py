@@ -230,14 +230,22 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
 
 def reach_ray(address: str | None) -> None:
     """Refuse a Ray address of the wrong form, or one whose HOST:PORT does not answer over TCP within
-    ``CONNECT_TIMEOUT`` seconds (``local`` and ``auto`` are Ray's to find; None: no Ray). Commands
+    ``CONNECT_TIMEOUT`` seconds (``local`` and ``auto`` are Ray's to find; None: no Ray), and any
+    address where Ray is not installed. Commands
     call it among their input checks, before an old run is replaced."""
-    if address is None or address in ("local", "auto"):
+    if address is None:
         return
     match = RAY_ADDRESS.match(address)
-    if match is None or (match["port"] is None and not match["client"]) or not 0 < int(match["port"] or RAY_CLIENT_PORT) < 65536:
+    if address not in ("local", "auto") and (match is None or (match["port"] is None and not match["client"])
+                                             or not 0 < int(match["port"] or RAY_CLIENT_PORT) < 65536):
         raise InputError(f"--ray {address!r}: expected local, auto, HOST:PORT (a cluster's head, e.g. 10.0.0.5:6379) "
                          "or ray://HOST[:PORT] (Ray Client)")
+    try:
+        import ray  # noqa: F401 - only whether it is installed
+    except ImportError:
+        raise InputError("--ray needs Ray: pip install -e \".[distributed]\"") from None
+    if address in ("local", "auto"):
+        return
     host, port = match["host"].strip("[]"), int(match["port"] or RAY_CLIENT_PORT)
     try:
         socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
