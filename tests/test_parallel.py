@@ -106,6 +106,23 @@ def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
     assert json.loads((tmp_path / "ray" / "report.json").read_text())["folds"][1]["fold"] == 2
 
 
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
+def test_a_full_disk_on_the_cluster_ends_the_run_without_a_second_try():
+    import errno
+
+    import ray
+
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:  # writing to /dev/full fails with ENOSPC: not retried, raised as the error itself
+        with pytest.raises(OSError) as full:
+            run_tasks(Path("/dev/full").write_text, ["x"], ["full disk"], ray="auto", progress=False)
+        assert full.value.errno == errno.ENOSPC
+        with pytest.raises(TasksFailed, match="ZeroDivisionError"):  # any other error is run again and reported
+            run_tasks((1).__truediv__, [0], ["zero"], ray="auto", progress=False)
+    finally:
+        ray.shutdown()
+
+
 def test_a_bad_worker_count_gets_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as refused:  # the parser refuses it itself
         run.main([*ARGS, "--out", str(tmp_path / "x"), "--workers", "0"])

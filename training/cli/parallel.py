@@ -69,6 +69,24 @@ def _with_threads(function: Callable, threads: int, argument):
     return function(argument)
 
 
+class _Fatal:
+    """What a Ray task returns instead of raising a fatal error (:func:`_fatal`), so that Ray does
+    not run it again; the runner raises the error."""
+
+    def __init__(self, error: BaseException):
+        self.error = error
+
+
+def _on_cluster(function: Callable, threads: int, argument):
+    """A Ray task's call: :func:`_with_threads`, a fatal error returned as :class:`_Fatal`."""
+    try:
+        return _with_threads(function, threads, argument)
+    except Exception as error:  # noqa: BLE001 - only fatal ones are kept from Ray's retry
+        if _fatal(error):
+            return _Fatal(error)
+        raise
+
+
 def _start_worker(busy) -> None:
     """A local worker process's initializer: remember the runner's count of busy workers, and watch
     the runner (module doc)."""
@@ -200,7 +218,7 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
             first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise InputError(f"--ray {address}: could not connect ({first})") from None
     try:
-        remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_with_threads)
+        remote = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_on_cluster)
         refs = [remote.remote(function, 1, a) for a in arguments]  # Ray gives each task one CPU
         index = {ref: i for i, ref in enumerate(refs)}
         results: list = [None] * len(arguments)
@@ -217,6 +235,8 @@ def _on_ray(function: Callable, arguments: Sequence, names: Sequence[str], worke
                     cause = getattr(error, "cause", None) or error
                     failures[names[i]] = _describe(cause) if not isinstance(cause, str) else cause
                     bar.write(f"{names[i]} failed twice on the cluster: {failures[names[i]]}")
+                if isinstance(results[i], _Fatal):
+                    raise results[i].error
                 bar.update(1)
         if failures:
             raise TasksFailed(failures)
