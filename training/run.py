@@ -571,14 +571,15 @@ def tradeoff_command(args) -> int:
         folder.ledger.files(out / "tradeoff.json", out / "tradeoff.md", out / "front.png")
         folder.ledger.events(out / "tensorboard")
         write_json(out / "tradeoff.json", result)
-        save_rgb(out / "front.png", figure_rgb(tradeoff_figure(result, heading)))
+        front = figure_rgb(tradeoff_figure(result, heading))  # drawn once, for the PNG and TensorBoard
+        save_rgb(out / "front.png", front)
         lines = [f"# Accuracy per byte: {result['task']}", "", f"Runs {', '.join(result['runs'])}; sets {', '.join(kinds)}; "
                  f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6), each seed weighted "
                  "equally; bytes: what each method stores per class (training/recognition/tradeoff.py).", "",
                  *tradeoff_table(result), "", "![the front](front.png)", ""]
         write_text(out / "tradeoff.md", "\n".join(lines))
         with SummaryWriter(str(out / "tensorboard")) as writer:
-            writer.add_figure("tradeoff/front", tradeoff_figure(result, heading), 0)
+            writer.add_image("tradeoff/front", front, 0, dataformats="HWC")
             writer.add_text("tradeoff/table", "\n".join(tradeoff_table(result)), 0)
     print("\n".join(tradeoff_table(result)))
     print(f"report: {out / 'tradeoff.md'}, {out / 'tradeoff.json'} and {out / 'front.png'}")
