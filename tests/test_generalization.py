@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.candidates import Primitive
 from ftorch.errors import InputError
 from ftorch.recognition.ksd import distinctive_at
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -145,21 +146,47 @@ def test_pseudocounts_follow_laplace_and_zero_keeps_relative_frequencies():
     assert net.posterior({"f": 0}) > 0  # absence no longer rules A out
 
 
+def test_a_leak_mixes_every_cpt_entry_with_its_complement_and_keeps_one_miss_from_ruling_a_class_out():
+    """l + (1 - 2l) p for every entry, after the counts (and any pseudocount) are taken."""
+    net = ClassNetwork("A")
+    net.add_feature("f")
+    net.add_feature("g", parents=["f"])
+    present = np.array([1, 1, 1, 1, 0, 0, 0, 0], bool)
+    states = {"f": np.array([1, 1, 1, 1, 0, 0, 0, 1]), "g": np.array([1, 1, 1, 1, 0, 0, 1, 0])}
+    plain = ClassNetwork("A")
+    plain.add_feature("f")
+    plain.add_feature("g", parents=["f"])
+    for pseudocount in (0.0, 1.0):
+        plain.estimate(present, states, pseudocount)
+        net.estimate(present, states, pseudocount, leak=0.1)
+        for key in ("f", "g"):
+            assert np.allclose(net.cpt[key], 0.1 + 0.8 * plain.cpt[key])
+            assert np.allclose(net.cpt[key].sum(-1), 1)
+        assert np.allclose(net.prior, plain.prior)  # the class prior is counted, not leaked
+    net.estimate(present, states, 0.0, leak=0.1)
+    plain.estimate(present, states, 0.0)
+    assert plain.posterior({"f": 0, "g": 1}) == 0  # f was present in every view of A: its absence rules A out
+    assert net.posterior({"f": 0, "g": 1}) > 0.05  # with the leak, g's presence still speaks for A
+
+
 def test_options_are_saved_validated_and_refused_with_one_line(shapes):
     learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5,
-                                        test_information=0.2)
+                                        test_information=0.2, leak=0.05, primitives="texture,edgel")
     copy = DistinctiveFeatureLearner()
     copy.load_state_dict(learner.state_dict())
     assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5,
-                              "cut_position": 0.5, "test_information": 0.2}
+                              "leak": 0.05, "cut_position": 0.5, "test_information": 0.2,
+                              "primitives": (Primitive.EDGEL, Primitive.TEXTURE)}
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
-                {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")}):
+                {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")},
+                {"leak": 0.5}, {"leak": -0.1}, {"leak": float("nan")}, {"primitives": ""}):
         with pytest.raises(InputError):
             DistinctiveFeatureLearner(**bad)
 
 
 @pytest.mark.parametrize("option", [["--search-rounds", "0"], ["--redundancy", "0"], ["--pseudocount", "-1"],
-                                    ["--pseudocount", "inf"], ["--test-information", "1"]])
+                                    ["--pseudocount", "inf"], ["--test-information", "1"], ["--leak", "0.5"],
+                                    ["--primitives", "texel,texel"]])
 def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path, capsys):
     from training import run
     try:

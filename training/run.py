@@ -47,6 +47,7 @@ from ftorch.checkpoint import write_text
 from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
 from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
+from ftorch.recognition.candidates import Primitive, primitive_set
 from ftorch.recognition.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
 from ftorch.space.record import ImageRecords, require_memory
 from training.data.augment import augment, overview as augmented_overview
@@ -195,9 +196,19 @@ TEST_INFORMATION = 0.0
 # The runner's generalization settings (the library's defaults are the thesis's): chosen on seed 5
 # at 128x128 and seeds 5-6 at 32x32, never on the reported seeds 0-4; see docs/results.md.
 PSEUDOCOUNT, REDUNDANCY = 1.0, 3
+PRIMITIVES = "texel,edgel"
+
 # A fold's checkpoint is written at most once a minute (and at its end): a write compresses the
 # value cache and the instance list anew, seconds per cycle at 20 COIL classes in 128x128.
 CHECKPOINT_EVERY = 60
+
+
+def primitives(text: str) -> str:
+    """--primitives: a comma-separated choice of method 2's primitives, in their canonical order."""
+    try:
+        return ",".join(primitive_set(text))
+    except InputError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 MAX_STAGES = 100
@@ -624,8 +635,14 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                         "1: alg. 5.2 as printed)")
     p.add_argument("--evidence", choices=EVIDENCE, default="both",
                    help="both: presence and absence enter the networks (4.4.1); positive: presence only (4.4.2)")
+    p.add_argument("--primitives", type=primitives, default=PRIMITIVES, metavar="LIST",
+                   help=f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
+                        f"(texture: the statistical texture of 7.2.1, the intensity distribution; default {PRIMITIVES})")
     p.add_argument("--pseudocount", type=number, default=PSEUDOCOUNT, metavar="A",
                    help=f"added to every CPT count (default {PSEUDOCOUNT:g}; 0: relative frequencies as the thesis)")
+    p.add_argument("--leak", type=number, default=0.0, metavar="L",
+                   help="detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing feature "
+                        "does not rule its class out (default 0)")
     p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
     p.add_argument("--augment", type=at_least(0, "a number of copies", 100), default=0, metavar="N",

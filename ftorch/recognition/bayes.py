@@ -314,12 +314,15 @@ class ClassNetwork:
                     todo.append(child)
         return out
 
-    def estimate(self, present: np.ndarray, states: dict[Hashable, np.ndarray], pseudocount: float = 0.0) -> None:
+    def estimate(self, present: np.ndarray, states: dict[Hashable, np.ndarray], pseudocount: float = 0.0,
+                 leak: float = 0.0) -> None:
         """Count prior and CPTs from instances: ``present`` (n,) bool, ``states`` key -> (n,) in {0, 1, -1 unknown}.
 
         CPT entries are relative frequencies (4.4.1; ``pseudocount`` 0) or, with a pseudocount a > 0,
         (count + a) / (total + 2a) (Laplace's rule for a = 1), so that no state seen zero times in
-        training makes a class impossible; a parent configuration never seen gives 1/2 either way."""
+        training makes a class impossible; a parent configuration never seen gives 1/2 either way.
+        A ``leak`` l > 0 models detection failure: each entry p becomes l + (1 - 2l) p, so a feature
+        is missed (or found by chance) with probability at least l whatever the counts said."""
         present = np.asarray(present, dtype=bool)
         self.prior = np.array([0.5, 0.5]) if len(present) == 0 else np.array([1 - present.mean(), present.mean()])
         by_parents: dict[int, list] = {}
@@ -337,6 +340,8 @@ class ClassNetwork:
             counts = np.bincount(index[known], minlength=cells * len(keys)).reshape(len(keys), *(2,) * (k + 2)).astype(float)
             total = counts.sum(-1, keepdims=True)
             tables = np.where(total > 0, (counts + pseudocount) / np.maximum(total + 2 * pseudocount, 1e-300), 0.5)
+            if leak:
+                tables = leak + (1 - 2 * leak) * tables
             for key, table in zip(keys, tables):
                 self._put(key, table)
 

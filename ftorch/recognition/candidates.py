@@ -1,7 +1,8 @@
 """Alg. 4.10: candidate features in order of structural complexity, by five methods.
 
-1. reuse a feature of an unrelated class; 2. a new primitive (texel or edgel pair, equally
-likely) sampled from the sample image; 3. a geometric expansion of a local feature in use (or
+1. reuse a feature of an unrelated class; 2. a new primitive sampled from the sample image, of a
+kind drawn uniformly from the learner's ``primitives`` (the thesis's: texel or edgel pair; the
+statistical texture of 7.2.1 where added); 3. a geometric expansion of a local feature in use (or
 failed before) at its strongest occurrence in the sample image; 4. a conjunction and 5. a
 disjunction of two such features.
 
@@ -13,15 +14,44 @@ would give under that drawing rule.
 from __future__ import annotations
 
 from collections.abc import Hashable
+from enum import StrEnum
 
 import torch
 
+from ..errors import InputError
 from ..space.features import Conjunction, Disjunction, LocalFeature
-from ..space.generate import expand_geometric, random_edgel_pair, random_texel
+from ..space.generate import expand_geometric, random_edgel_pair, random_texel, random_texture
 from .bayes import ClassNetwork
 from .environment import ImageSet
 
 METHODS = (1, 2, 3, 4, 5)
+
+
+class Primitive(StrEnum):
+    """The kinds of new primitive that method 2 samples, in the order its draw indexes them."""
+
+    TEXEL = "texel"
+    EDGEL = "edgel"  # a geometric compound of two edgels
+    TEXTURE = "texture"  # 7.2.1
+
+
+THESIS_PRIMITIVES = (Primitive.TEXEL, Primitive.EDGEL)
+_SAMPLERS = {Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
+
+
+def primitive_set(value) -> tuple[Primitive, ...]:
+    """The primitives named by ``value`` (a comma-separated string or a sequence of names), in
+    :class:`Primitive` order, so that a set names one draw; InputError for an unknown, repeated or
+    empty choice."""
+    names = value.split(",") if isinstance(value, str) else list(value)
+    try:
+        chosen = [Primitive(str(name).strip()) for name in names]
+    except ValueError:
+        raise InputError(f"primitives {value!r}: expected a comma-separated choice of "
+                         f"{', '.join(Primitive)}") from None
+    if not chosen or len(set(chosen)) != len(chosen):
+        raise InputError(f"primitives {value!r}: name each of {', '.join(Primitive)} at most once, one at least")
+    return tuple(p for p in Primitive if p in chosen)
 
 
 def pick(items: list, generator: torch.Generator):
@@ -38,8 +68,9 @@ class CandidateGenerator:
     """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
     from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
 
-    def __init__(self, generator: torch.Generator):
+    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES):
         self.generator = generator
+        self.primitives = primitive_set(primitives)
         self.sampled = 0
 
     def __call__(self, method: int, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
@@ -53,10 +84,10 @@ class CandidateGenerator:
             pool = [f for label, net in networks.items() if label not in related for f in net.features if f not in own]
             pool = list(dict.fromkeys(pool))
             return [pick(pool, generator) for _ in range(n)] if pool else []
-        if method == 2:  # new primitive from the sample image
-            record = env.record(sample)
-            made = [random_texel(record, 0, generator) if torch.rand(1, generator=generator) < 0.5
-                    else random_edgel_pair(record, 0, generator) for _ in range(n)]
+        if method == 2:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
+            record, kinds = env.record(sample), self.primitives
+            made = [_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](record, 0, generator)
+                    for _ in range(n)]
             made = [f for f in made if f is not None]
             self.sampled += len(made)
             return made

@@ -58,15 +58,17 @@ class Counting:
         result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
 
-    def estimate(self, net: ClassNetwork, pseudocount: float) -> None:
-        """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a)."""
+    def estimate(self, net: ClassNetwork, pseudocount: float, leak: float = 0.0) -> None:
+        """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a), with
+        the detection-failure ``leak`` of :meth:`ClassNetwork.estimate`."""
         values = self.instances.block(net.features)
         thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
         coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
         states = dict(zip(net.features, coded))
-        net.estimate(self.instances.has(net.label), states, pseudocount)
+        net.estimate(self.instances.has(net.label), states, pseudocount, leak)
 
-    def reestimate(self, networks: dict[Hashable, ClassNetwork], cut_position: float, pseudocount: float) -> None:
+    def reestimate(self, networks: dict[Hashable, ClassNetwork], cut_position: float, pseudocount: float,
+                   leak: float = 0.0) -> None:
         """Alg. 4.7 step 3: re-discretize every node by KSD and re-count every CPT and prior."""
         for label, net in networks.items():
             if net.features:
@@ -74,7 +76,7 @@ class Counting:
                 for f, cut in zip(net.features, cuts.tolist()):
                     if np.isfinite(cut):
                         net.set_threshold(f, cut)
-            self.estimate(net, pseudocount)
+            self.estimate(net, pseudocount, leak)
 
     def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple]) -> list[torch.Tensor]:
         """KSD_{c,d}(f) (len(others), len(features)) for each (c, others, features) of ``pairs`` (alg.

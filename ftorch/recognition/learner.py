@@ -42,6 +42,12 @@ Options for generalization beyond the thesis (each default is the thesis's behav
   the thesis's experiments consult features "exhaustively" (0). A learner trained with a
   threshold rules a class out after one or two absent features and never asks the rest of its
   network, which gives ignorant answers; asking until I_max = 0 uses all the evidence it has.
+- ``primitives``: the kinds of new primitive alg. 4.10's method 2 samples, drawn uniformly:
+  texels and edgel pairs (the thesis), and the statistical texture of 7.2.1 where added
+  (``ftorch.space.texture``: the intensity distribution around a point, which faces and other
+  textured objects need and texels, normalised derivative responses, do not carry).
+- ``leak`` l (detection failure): every CPT entry p becomes l + (1 - 2l) p, so one feature
+  missing from an unseen view (occluded, rotated away) never rules its class out alone.
 - ``pseudocount`` a: CPTs count (n + a) / (N + 2a). The thesis's relative frequencies (a = 0)
   give a feature present in every training view of c P(absent | c) = 0, so one unseen view
   without it makes c impossible: an ignorant result.
@@ -58,7 +64,7 @@ from ..checkpoint import decode_array, encode_array, load_checkpoint, save_check
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
 from .bayes import ClassNetwork, compound_arcs
-from .candidates import METHODS, CandidateGenerator, in_use, pick
+from .candidates import METHODS, THESIS_PRIMITIVES, CandidateGenerator, in_use, pick, primitive_set
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
@@ -68,7 +74,8 @@ from .instances import InstanceList, are_stored_values
 
 KIND = "learner"
 EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
-OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "cut_position", "test_information")
+OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "leak", "cut_position", "test_information",
+           "primitives")
 
 
 class Presentation(NamedTuple):
@@ -135,7 +142,8 @@ class DistinctiveFeatureLearner:
 
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
                  search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
-                 cut_position: float = 0.5, test_information: float = 0.0):
+                 cut_position: float = 0.5, test_information: float = 0.0, primitives=THESIS_PRIMITIVES,
+                 leak: float = 0.0):
         for name, count in (("n_ex", n_ex), ("n_fgen", n_fgen), ("search_rounds", search_rounds), ("redundancy", redundancy)):
             _whole(name, count, 1)
         _whole("seed", seed, 0, MAX_SEED)
@@ -144,6 +152,8 @@ class DistinctiveFeatureLearner:
                 raise InputError(f"{name} must lie in [0, 1) bits, got {bits}")
         if not 0.0 <= pseudocount < float("inf"):
             raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
+        if not 0.0 <= leak < 0.5:
+            raise InputError(f"leak must lie in [0, 0.5), got {leak}")
         if not 0.0 <= cut_position <= 1.0:
             raise InputError(f"cut_position must lie in [0, 1], got {cut_position}")
         if evidence not in EVIDENCE:
@@ -151,11 +161,11 @@ class DistinctiveFeatureLearner:
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
         self.min_information, self.test_information = float(min_information), float(test_information)
         self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
-        self.pseudocount, self.cut_position = float(pseudocount), float(cut_position)
+        self.pseudocount, self.leak, self.cut_position = float(pseudocount), float(leak), float(cut_position)
         self.generator = torch.Generator().manual_seed(int(seed))  # every random choice; set in place on load
         self.networks: dict[Hashable, ClassNetwork] = {}
         self.counting = Counting()
-        self.candidates = CandidateGenerator(self.generator)
+        self.candidates = CandidateGenerator(self.generator, primitives)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
         self.trainable = True  # False once loaded from a recognition-only state
@@ -168,6 +178,15 @@ class DistinctiveFeatureLearner:
     @property
     def discriminates(self) -> dict[tuple, frozenset]:
         return self.counting.discriminates
+
+    @property
+    def primitives(self) -> tuple:
+        """Method 2's kinds of primitive (module docstring); set by name, as the constructor takes them."""
+        return self.candidates.primitives
+
+    @primitives.setter
+    def primitives(self, value) -> None:
+        self.candidates.primitives = primitive_set(value)
 
     @property
     def sampled(self) -> int:
@@ -214,7 +233,7 @@ class DistinctiveFeatureLearner:
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior."""
-        self.counting.reestimate(self.networks, self.cut_position, self.pseudocount)
+        self.counting.reestimate(self.networks, self.cut_position, self.pseudocount, self.leak)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
     def learn(self, env: ImageSet, image: int, t_ksd: float = 0.0) -> Presentation:
@@ -297,7 +316,7 @@ class DistinctiveFeatureLearner:
         self.counting.forget(unused, self.networks)
         if unused:
             for net in self.networks.values():
-                self.counting.estimate(net, self.pseudocount)
+                self.counting.estimate(net, self.pseudocount, self.leak)
         return unused
 
     def choose_classes(self, rec: Recognition, true: frozenset) -> tuple[Hashable, frozenset, bool] | None:
@@ -355,7 +374,7 @@ class DistinctiveFeatureLearner:
                 self.counting.discriminates[(char, candidate)] = disc
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
-                self.counting.estimate(net, self.pseudocount)
+                self.counting.estimate(net, self.pseudocount, self.leak)
                 after = self._learning_recognition(env, image)
                 self.counting.record(image, after)
                 if succeeded(after):
@@ -363,7 +382,7 @@ class DistinctiveFeatureLearner:
                     return True
                 net.remove_feature(candidate)
                 del self.counting.discriminates[(char, candidate)]
-                self.counting.estimate(net, self.pseudocount)
+                self.counting.estimate(net, self.pseudocount, self.leak)
                 failed.append(candidate)
         return False
 
@@ -390,7 +409,8 @@ class DistinctiveFeatureLearner:
         own = table is None
         table = FeatureTable() if own else table
         state = {"n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information,
-                 **self.options(), "presentations": self.presentations, "sampled": self.sampled,
+                 **self.options(), "primitives": [str(p) for p in self.primitives],
+                 "presentations": self.presentations, "sampled": self.sampled,
                  "sides": None if self.sides is None else list(self.sides), "networks": self._networks_state(table)}
         if training:
             instances = self.instances
@@ -422,7 +442,7 @@ class DistinctiveFeatureLearner:
                    **{k: state[k] for k in OPTIONS if k in state}}
         for k in ("search_rounds", "redundancy"):
             options[k] = _count(options[k])
-        for k in ("pseudocount", "cut_position", "test_information"):
+        for k in ("pseudocount", "leak", "cut_position", "test_information"):
             options[k] = _number(options[k])
         self.set_params(**options)
         self.presentations, self.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])

@@ -8,8 +8,9 @@ else (no instance list, no value cache, no images). :func:`pack` writes exactly 
   compounds: a ``uint8`` type code (:data:`CODES`), then
   texel: its 15 ``float32``; geometric: ``uint8`` part count, per part a ``uint8`` kind and its
   vector (15 or 2 ``float32``), and for every part after the first its placement phi, dtheta, d,
-  dsigma (4 ``float32``; the first part's is never used, alg. 3.6); conjunction, disjunction: two
-  ``uint16`` positions of their sub-features in the table;
+  dsigma (4 ``float32``; the first part's is never used, alg. 3.6); texture: ``uint8`` level k
+  (sigma = 2^(k/2)) and its 8 ``float32``; conjunction, disjunction: two ``uint16`` positions of
+  their sub-features in the table;
 - per network, in class order: P(class) as ``float32``, ``uint16`` node count, then per node its
   feature's ``uint16`` table position, its cut-point (``float32``), ``uint8`` parent count with the
   parents' ``uint16`` node positions, and P(node present | class, parents) for each of the
@@ -26,11 +27,12 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
+from ..space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture
 from ..space.primitives import PartKind
+from ..space.texture import BINS, level_sigma
 from .bayes import ClassNetwork
 
-CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3}
+CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4}
 KINDS = (PartKind.TEXEL, PartKind.EDGEL)  # a part kind's code is its position
 LIMIT = 1 << 16  # features per table and nodes per network that a uint16 position can name
 
@@ -93,6 +95,9 @@ def _put_feature(out: _Writer, feature: Feature, positions: dict[Feature, int]) 
             out.floats(part.vector)
             if k:
                 out.floats((part.phi, part.dtheta, part.d, part.dsigma))
+    elif isinstance(feature, Texture):
+        out.put("B", feature.level)
+        out.floats(feature.histogram)
     else:
         out.put("HH", positions[feature.a], positions[feature.b])
 
@@ -132,6 +137,9 @@ def _get_feature(source: _Reader, table: list[Feature]) -> Feature:
             vector = source.floats(part.size).tolist()
             parts.append(Part(part, vector, *(source.floats(4).tolist() if k else ())))
         return Geometric(tuple(parts))
+    if kind is Texture:
+        (level,) = source.get("B")
+        return Texture(level_sigma(level), source.floats(BINS).tolist())
     if kind is None:
         raise ValueError(f"feature type code {code} is not one of {sorted(CODES.values())}")
     a, b = source.get("HH")

@@ -1,7 +1,8 @@
-"""The feature space (chapter 3): the steerable scale space, salient edgels and texels, the image
-records cached once per image, the feature types and their batched values (eq. 3.12-3.14)."""
+"""The feature space (chapter 3): the steerable scale space, salient edgels and texels, the
+statistical texture of 7.2.1, the image records cached once per image, the feature types and
+their batched values (eq. 3.12-3.14)."""
 from .evaluate import FeatureValues, feature_values
-from .features import Conjunction, Disjunction, Feature, Geometric, LocalFeature, Texel
+from .features import Conjunction, Disjunction, Feature, Geometric, LocalFeature, Texel, Texture
 from .primitives import BLOB, CORNER, EDGEL, PartKind
 from .record import FeatureSpace, ImageRecords
 from .salient import SalientPoints
@@ -10,5 +11,5 @@ from .scale_space import ScaleSpace, ScaleSpaceOutput
 __all__ = [
     "BLOB", "CORNER", "Conjunction", "Disjunction", "EDGEL", "Feature", "FeatureSpace", "FeatureValues",
     "Geometric", "ImageRecords", "LocalFeature", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput",
-    "Texel", "feature_values",
+    "Texel", "Texture", "feature_values",
 ]

@@ -6,7 +6,8 @@ strongest (eq. 3.14), the parts of a geometric compound joined by solid lines, t
 sub-features of a Boolean compound by a dotted line, and an id beside the reference point.
 Edgels are segments of length 2*sigma along the edge (across the gradient) centred on the
 point; blobs are circles and corners squares of radius sigma, each with a line from the
-centre along its orientation.
+centre along its orientation; a texture (7.2.1, no orientation) is a dashed circle of radius
+2 sigma, its window's reach.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from torch import Tensor
 from ..checkpoint import write_atomic
 from ..images import to_uint8
 from .evaluate import feature_values
-from .features import Feature, LocalFeature
+from .features import Feature, LocalFeature, Texture
 from .primitives import BLOB, CORNER, EDGEL
 from .record import ImageRecords
 from .sampling import placements
@@ -116,6 +117,12 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
     x, y, sigma, theta = where[feature]
     if not math.isfinite(x):
         return None
+    if isinstance(feature, Texture):
+        centre, r = _centre(x, y, zoom), 2 * sigma * zoom
+        ring = [(centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 33)]
+        for a, b in zip(ring[0::2], ring[1::2]):
+            _line(canvas, a, b, colour, 2)
+        return centre
     if isinstance(feature, LocalFeature):
         start = tuple(torch.tensor(v, dtype=torch.float64) for v in (x, y, sigma, theta))
         previous = None
@@ -134,7 +141,8 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
     return drawn[0] if drawn else None
 
 
-LEGEND_KEY = ("circle: blob, square: corner", "segment: edgel (sizes: sigma)", "line: geometric parts, dots: and/or")
+LEGEND_KEY = ("circle: blob, square: corner", "segment: edgel (sizes: sigma)", "dashed circle: texture (2 sigma)",
+              "line: geometric parts, dots: and/or")
 
 
 def feature_legend(features, ids, width: int) -> np.ndarray:

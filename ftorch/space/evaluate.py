@@ -4,7 +4,8 @@ For F features and N image records the values come from gathered tensors: part 0
 local feature is matched against the canonical descriptors of all reference points at once
 (one matrix product); later parts are placed by alg. 3.6, sampled from the pyramid and steered
 to their orientation. Since steering is orthogonal, the normalised inner product of canonical
-vectors equals eq. 3.13's. Boolean compounds combine their sub-feature values (3.5.2).
+vectors equals eq. 3.13's. Texture features (7.2.1) are matched against the texture grid points
+of their level in the same way. Boolean compounds combine their sub-feature values (3.5.2).
 """
 from __future__ import annotations
 
@@ -16,10 +17,11 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .features import Feature, LocalFeature
+from .features import Feature, LocalFeature, Texture
 from .primitives import PartKind
 from .record import ImageRecords
 from .sampling import Frames, placements, sample_unmasked, steered
+from .texture import level_sigma
 
 
 @dataclass
@@ -59,9 +61,7 @@ def _local_fields(features: list[LocalFeature], records: ImageRecords, max_eleme
     reference = _ReferencePoints.of(records, kinds[0])
     n_images, n_points = reference.padded
     if n_points == 0:
-        zeros = torch.zeros(len(features), n_images, device=device, dtype=dtype)
-        nan = torch.full_like(zeros, math.nan)
-        return (zeros, nan, nan, nan, nan) if located else (zeros,)
+        return reference.nothing(len(features), located)
     chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if len(kinds) > 1 else 1)))
     results = [_local_chunk([v[s : s + chunk] for v in vectors], params[s : s + chunk], kinds, records, reference,
                             located) for s in range(0, len(features), chunk)]
@@ -69,28 +69,33 @@ def _local_fields(features: list[LocalFeature], records: ImageRecords, max_eleme
 
 
 class _ReferencePoints:
-    """The salient points of one kind (edgels or texels) in a batch of records as one list (K,),
-    image by image: each point's image and slot (its rank among that image's points of the kind),
-    x, y, sigma, theta and canonical vector (the first-order pair for edgels, all 15 numbers for
-    texels). Per-image maxima are taken in the padded layout ``padded`` = (N, P_kind)."""
+    """The reference points of one kind in a batch of records as one list (K,), image by image:
+    each point's image and slot (its rank among that image's points of the kind), x, y, sigma,
+    theta and canonical vector. Per-image maxima are taken in the padded layout ``padded`` =
+    (N, P_kind). The kinds: the salient edgels or texels (the first-order pair for edgels, all 15
+    numbers for texels), or the texture grid points of one level (their histograms, theta 0)."""
 
-    def __init__(self, records: ImageRecords, kind: PartKind):
-        applicable = kind.mask(records)
+    def __init__(self, applicable: Tensor, x: Tensor, y: Tensor, sigma: Tensor, theta: Tensor, vectors: Tensor):
         image, point = applicable.nonzero(as_tuple=True)
         rank = applicable.cumsum(1) - 1
         self.image, self.slot = image, rank[image, point]
-        self.padded = (len(records), int(rank.max()) + 1 if len(image) else 0)
-        self.x, self.y = records.x[image, point], records.y[image, point]
-        self.sigma, self.theta = records.sigma[image, point], records.theta[image, point]
-        self.canonical = records.canonical[..., kind.slots][image, point]
+        self.padded = (applicable.shape[0], int(rank.max()) + 1 if len(image) else 0)
+        self.x, self.y, self.sigma, self.theta = (field[image, point] for field in (x, y, sigma, theta))
+        self.canonical = vectors[image, point]
 
     @staticmethod
-    def of(records: ImageRecords, kind: PartKind) -> "_ReferencePoints":
-        """The points of ``kind`` in ``records``, found once per records object (records are never
-        changed in place)."""
+    def of(records: ImageRecords, kind: PartKind | int) -> "_ReferencePoints":
+        """The points of ``kind`` (a part kind, or a texture level) in ``records``, found once per
+        records object (records are never changed in place)."""
         known = records.__dict__.setdefault("_reference_points", {})
         if kind not in known:
-            known[kind] = _ReferencePoints(records, kind)
+            if isinstance(kind, PartKind):
+                known[kind] = _ReferencePoints(kind.mask(records), records.x, records.y, records.sigma, records.theta,
+                                               records.canonical[..., kind.slots])
+            else:
+                sigma = torch.full_like(records.grid_x, level_sigma(kind))
+                known[kind] = _ReferencePoints(records.grid_mask & (records.grid_level == kind), records.grid_x,
+                                               records.grid_y, sigma, torch.zeros_like(sigma), records.histograms)
         return known[kind]
 
     def located(self, field: Tensor, best: Tensor, where: Tensor) -> Tensor:
@@ -99,6 +104,22 @@ class _ReferencePoints:
         padded[self.image, self.slot] = field
         at = padded.expand(len(where), -1, -1).gather(-1, where[..., None])[..., 0]
         return torch.where(best >= 0, at, math.nan)
+
+    def best(self, cosine: Tensor, located: bool) -> tuple[Tensor, ...]:
+        """Eq. 3.14: the largest of ``cosine`` (F, K) per image (0 where an image has no point, or
+        where every point's is invalid, -1), with the fields of the point reaching it where ``located``."""
+        padded = cosine.new_full((len(cosine), *self.padded), -1.0)
+        padded[:, self.image, self.slot] = cosine
+        if not located:
+            return (padded.amax(-1).clamp_min(0),)
+        top, where = padded.max(-1)
+        return (top.clamp_min(0), *(self.located(field, top, where) for field in (self.x, self.y, self.sigma, self.theta)))
+
+    def nothing(self, features: int, located: bool) -> tuple[Tensor, ...]:
+        """The fields where no image has a point of this kind: values 0, locations NaN."""
+        zeros = self.canonical.new_zeros(features, self.padded[0])
+        nan = torch.full_like(zeros, math.nan)
+        return (zeros, nan, nan, nan, nan) if located else (zeros,)
 
 
 def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, ...], records: ImageRecords,
@@ -123,13 +144,26 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     pattern = sum((v**2).sum(1) for v in vectors)[:, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
     cosine = cosine.clamp_min(0) if valid is None else torch.where(valid, cosine.clamp_min(0), -1.0)
-    padded = cosine.new_full((len(params), *reference.padded), -1.0)
-    padded[:, reference.image, reference.slot] = cosine
-    if not located:
-        return (padded.amax(-1).clamp_min(0),)
-    best, where = padded.max(-1)
-    return (best.clamp_min(0), *(reference.located(field, best, where) for field in
-                                 (reference.x, reference.y, reference.sigma, reference.theta)))
+    return reference.best(cosine, located)
+
+
+def _texture_fields(features: list[Texture], records: ImageRecords, max_elements: int,
+                    located: bool) -> tuple[Tensor, ...]:
+    """Texture features of one level (7.2.1): the Bhattacharyya coefficient of their histograms
+    and those of the level's grid points, a normalised dot product, at its largest per image."""
+    reference = _ReferencePoints.of(records, features[0].level)
+    if reference.padded[1] == 0:
+        return reference.nothing(len(features), located)
+    vectors = torch.tensor([f.histogram for f in features], device=records.device, dtype=records.dtype)
+    chunk = max(1, max_elements // max(1, len(reference.image) * 2))
+    tiny = torch.finfo(records.dtype).tiny
+    points = reference.canonical / reference.canonical.norm(dim=1, keepdim=True).clamp_min(tiny)
+    results = []
+    for start in range(0, len(features), chunk):
+        v = vectors[start : start + chunk]
+        cosine = (v / v.norm(dim=1, keepdim=True)) @ points.T
+        results.append(reference.best(cosine.clamp(0, 1), located))
+    return tuple(torch.cat(parts) for parts in zip(*results))
 
 
 @torch.no_grad()
@@ -154,15 +188,17 @@ def _evaluate(features: Sequence[Feature], records: ImageRecords, max_elements: 
     features = list(features)
     if not all(isinstance(f, Feature) for f in features):
         raise InputError("features: every item must be an ftorch Feature")
-    leaves: dict[LocalFeature, int] = {}
+    leaves: dict[Feature, int] = {}
     for feature in features:
         _collect(feature, leaves)
-    groups: dict[tuple, list[LocalFeature]] = {}
+    groups: dict[tuple, list[Feature]] = {}
     for leaf in leaves:
-        groups.setdefault(tuple(p.kind for p in leaf.parts), []).append(leaf)
-    leaf_values: dict[LocalFeature, tuple[Tensor, ...]] = {}
+        key = ("texture", leaf.level) if isinstance(leaf, Texture) else tuple(p.kind for p in leaf.parts)
+        groups.setdefault(key, []).append(leaf)
+    leaf_values: dict[Feature, tuple[Tensor, ...]] = {}
     for group in groups.values():
-        result = _local_fields(group, records, max_elements, located)
+        measure = _texture_fields if isinstance(group[0], Texture) else _local_fields
+        result = measure(group, records, max_elements, located)
         for j, leaf in enumerate(group):
             leaf_values[leaf] = tuple(t[j] for t in result)
     if not features:
@@ -173,13 +209,13 @@ def _evaluate(features: Sequence[Feature], records: ImageRecords, max_elements: 
 
 
 def _collect(feature: Feature, leaves: dict) -> None:
-    if isinstance(feature, LocalFeature):
+    if isinstance(feature, (LocalFeature, Texture)):
         leaves.setdefault(feature, len(leaves))
     for sub in feature.subfeatures():
         _collect(sub, leaves)
 
 
 def _combine(feature: Feature, leaf_values: dict) -> tuple[Tensor, ...]:
-    if isinstance(feature, LocalFeature):
+    if isinstance(feature, (LocalFeature, Texture)):
         return leaf_values[feature]
     return feature.combine(*(_combine(sub, leaf_values) for sub in feature.subfeatures()))

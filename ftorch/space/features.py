@@ -3,6 +3,8 @@
 - :class:`Texel`: a 15-d texel response vector (3.4.2), canonical (steered to its own orientation).
 - :class:`Geometric`: n >= 2 primitive :class:`Part` s with attitudes phi_i, angle differences
   dtheta_i, distances d_i (in units of sigma_{i-1}) and scale ratios dsigma_i (alg. 3.6).
+- :class:`Texture`: a statistical texture primitive (7.2.1), the intensity histogram around a
+  point at a scale (``ftorch.space.texture``); it has no parts and no orientation.
 - :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
 
 Each type carries its own behaviour: its JSON form (``TYPE``, ``to_dict``, ``_from_dict``), its
@@ -30,6 +32,7 @@ from torch import Tensor
 from ..checkpoint import decode_text, encode_text
 from ..errors import InputError
 from .primitives import PartKind
+from .texture import BINS, sigma_level
 
 
 def _vector(values, kind: PartKind) -> tuple[float, ...]:
@@ -226,6 +229,45 @@ class Geometric(LocalFeature):
 
     def describe(self) -> str:
         return "geometric: " + "-".join(p.kind for p in self.parts)
+
+
+@dataclass(frozen=True)
+class Texture(Feature):
+    """The square-rooted intensity histogram (BINS numbers) of a window of scale ``sigma``, one of
+    the scale space's levels from sigma = 2 (7.2.1; ``ftorch.space.texture``)."""
+    __hash__ = _CachedHash.__hash__
+    TYPE = "texture"
+    sigma: float
+    histogram: tuple[float, ...]
+
+    def __post_init__(self):
+        sigma = self.sigma if isinstance(self.sigma, float) else float(self.sigma) \
+            if isinstance(self.sigma, int) and not isinstance(self.sigma, bool) else None
+        if sigma is None or sigma_level(sigma) is None:
+            raise InputError(f"texture sigma must be a level of the scale space, 2^(k/2) for k >= 2, got {self.sigma!r}")
+        hist = tuple(float(v) for v in self.histogram)
+        if len(hist) != BINS or not all(math.isfinite(v) and v >= 0 for v in hist) or not any(hist):
+            raise InputError(f"texture histogram must be {BINS} finite numbers >= 0, not all zero")
+        object.__setattr__(self, "sigma", sigma)
+        object.__setattr__(self, "histogram", hist)
+
+    @property
+    def level(self) -> int:
+        return sigma_level(self.sigma)
+
+    @property
+    def primitives(self) -> int:
+        return 1
+
+    def to_dict(self) -> dict:
+        return {"type": self.TYPE, "sigma": self.sigma, "histogram": list(self.histogram)}
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "Texture":
+        return cls(data["sigma"], data["histogram"])
+
+    def describe(self) -> str:
+        return "texture"
 
 
 @dataclass(frozen=True)

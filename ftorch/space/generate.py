@@ -1,4 +1,5 @@
-"""Generating candidate features from a sample image (alg. 4.10, methods 2 and 3).
+"""Generating candidate features from a sample image (alg. 4.10, methods 2 and 3; the texture
+primitive of 7.2.1).
 
 Every generated part is measured exactly as :func:`ftorch.space.evaluate.feature_values` measures
 it, so a feature sampled from an image has value 1 at its own reference point there.
@@ -14,10 +15,11 @@ from torch import Tensor
 
 from ..errors import InputError
 from .evaluate import feature_values
-from .features import Geometric, LocalFeature, Part, Texel
+from .features import Geometric, LocalFeature, Part, Texel, Texture
 from .primitives import PartKind
 from .record import ImageRecords
 from .sampling import placements, steered_sample
+from .texture import level_sigma
 
 
 def _choose(candidates: Tensor, generator) -> int | None:
@@ -60,6 +62,18 @@ def random_texel(records: ImageRecords, n: int, generator: torch.Generator | Non
     """Method 2, texel branch: the texel response vector at a random salient texel of image n."""
     p = _choose(records.texel_mask()[n].nonzero()[:, 0].cpu(), generator)
     return None if p is None else Texel(_own_vector(records, n, p))
+
+
+def random_texture(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texture | None:
+    """Method 2, texture branch (7.2.1): the histogram at a random texture grid point of image n,
+    its level drawn first (uniformly among the levels with points), then the point."""
+    points = records.grid_mask[n]
+    levels = records.grid_level[n][points].unique().cpu()
+    level = _choose(levels, generator)
+    if level is None:
+        return None
+    q = _choose((points & (records.grid_level[n] == level)).nonzero()[:, 0].cpu(), generator)
+    return Texture(level_sigma(level), records.histograms[n, q].tolist())
 
 
 def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator | None = None,

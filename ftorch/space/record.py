@@ -25,6 +25,7 @@ from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
 from .salient import Points, SalientPoints
 from .scale_space import ScaleSpace, ScaleSpaceOutput
 from .steering import steer
+from .texture import TextureGrid
 
 
 def kind_slots(kind: Tensor) -> Tensor:
@@ -106,7 +107,9 @@ class ImageRecords:
     pyramid: the response pyramids, shared by batches selected from one another, and source (N,)
     each record's row in it; levels (N,) and sizes (N, 2) = (H, W) per image;
     per point (N, P): x, y (pixels; x = column), level, sigma, theta, kind, strength, mask;
-    descriptors (N, P, 15) in the image frame and canonical (N, P, 15) steered to theta.
+    descriptors (N, P, 15) in the image frame and canonical (N, P, 15) steered to theta;
+    per texture grid point (N, Q): grid_x, grid_y, grid_level, grid_mask, and the square-rooted
+    intensity histograms (N, Q, BINS) there (``ftorch.space.texture``, 7.2.1).
     """
 
     pyramid: Pyramid
@@ -123,10 +126,17 @@ class ImageRecords:
     mask: Tensor
     descriptors: Tensor
     canonical: Tensor
+    grid_x: Tensor
+    grid_y: Tensor
+    grid_level: Tensor
+    grid_mask: Tensor
+    histograms: Tensor
 
     @classmethod
-    def build(cls, space: ScaleSpaceOutput, points: Points, into: Pyramid | None = None, offset: int = 0) -> "ImageRecords":
-        """Records of one batch; its pyramid is written into images offset, ... of ``into`` where given."""
+    def build(cls, space: ScaleSpaceOutput, points: Points, texture: tuple[Tensor, ...], into: Pyramid | None = None,
+              offset: int = 0) -> "ImageRecords":
+        """Records of one batch (``texture``: its :class:`~ftorch.space.texture.TextureGrid`); its
+        pyramid is written into images offset, ... of ``into`` where given."""
         responses = space.responses
         batch, levels, _, height, width = responses.shape
         b, y, x, k = points.image, points.y, points.x, points.level
@@ -163,6 +173,11 @@ class ImageRecords:
             mask=pad(torch.ones_like(b, dtype=torch.bool), False),
             descriptors=pad(raw),
             canonical=pad(steer(raw, points.theta)),
+            grid_x=texture[0].expand(batch, -1),
+            grid_y=texture[1].expand(batch, -1),
+            grid_level=texture[2].expand(batch, -1),
+            grid_mask=torch.ones(batch, len(texture[0]), dtype=torch.bool, device=responses.device),
+            histograms=texture[3],
         )
 
     def own_pyramid(self) -> Pyramid:
@@ -225,7 +240,7 @@ class ImageRecords:
         the joined pyramid, in this order, where the caller has built it (their own are not read)."""
         if len(records) == 1 and pyramid is None:
             return records[0]
-        fills = {"sigma": 1, "kind": -1, "mask": False}
+        fills = {"sigma": 1, "kind": -1, "mask": False, "grid_level": -1, "grid_mask": False}
         joined = {}
         for f in fields(ImageRecords)[2:]:
             parts = [getattr(r, f.name) for r in records]
@@ -257,10 +272,15 @@ class FeatureSpace(nn.Module):
         super().__init__()
         self.scale_space = ScaleSpace(truncate)
         self.salient = SalientPoints(rel_threshold)
+        self.texture = TextureGrid(truncate)
 
     def forward(self, images) -> ImageRecords:
+        images = as_image_batch(images)
         space = self.scale_space(images)
-        return ImageRecords.build(space, self.salient(space))
+        return ImageRecords.build(space, self.salient(space), self._texture(images, space))
+
+    def _texture(self, images: Tensor, space: ScaleSpaceOutput) -> tuple[Tensor, ...]:
+        return self.texture(images[:, 0].to(space.responses.dtype), space.responses.shape[1])
 
     def _pyramid_layout(self, shapes: Sequence[tuple[int, int]]) -> tuple[int, int, int]:
         """(height, width, S+3 entries) of the joined pyramid of images of these (H, W) shapes."""
@@ -305,11 +325,12 @@ class FeatureSpace(nn.Module):
         # holds one set of tables, not two
         parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
-            space = self.scale_space(torch.stack([loaded[i] for i in idx]))
+            batch = torch.stack([loaded[i] for i in idx])
+            space = self.scale_space(batch)
             if pyramid is None:
                 dtype = functools.reduce(torch.promote_types, [space.responses.dtype] + [image.dtype for image in loaded])
                 pyramid = Pyramid.zeros(len(loaded), height, width, entries, dtype, device)
-            parts.append(ImageRecords.build(space, self.salient(space), pyramid, len(order)))
+            parts.append(ImageRecords.build(space, self.salient(space), self._texture(batch, space), pyramid, len(order)))
             order.extend(idx)
         joined = ImageRecords.cat(parts, pyramid)
         inverse = torch.empty(len(order), dtype=torch.long)

@@ -114,8 +114,10 @@ class RunConfig:
     redundancy: int = 1
     evidence: str = "both"
     pseudocount: float = 0.0
+    leak: float = 0.0
     cut_position: float = 0.5
     test_information: float = 0.0
+    primitives: str = "texel,edgel"
     device: str = "cpu"
     stages: str = "0"
     max_cycles: int = 20
@@ -220,7 +222,10 @@ class Fold:
 
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
-        if data.get("config") != self.config.to_dict() or data.get("fold") != self.fold:
+        stored = data.get("config")
+        if isinstance(stored, dict):  # a run written before these options existed ran with their defaults
+            stored = {**{k: getattr(RunConfig, k) for k in ("leak", "primitives")}, **stored}
+        if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")
         learner = DistinctiveFeatureLearner()

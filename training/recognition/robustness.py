@@ -89,7 +89,7 @@ def learner_results(learner: DistinctiveFeatureLearner, sets: dict, classes: lis
 
 def feature_type(feature) -> str:
     """A node's type in the per-feature tables: texel, edgel pair (alg. 4.10 method 2), geometric
-    compound of N parts (method 3), conjunction, disjunction."""
+    compound of N parts (method 3), texture (7.2.1), conjunction, disjunction."""
     if isinstance(feature, Geometric):
         return "edgel pair" if feature.describe() == "geometric: edgel-edgel" else f"geometric, {len(feature.parts)} parts"
     return feature.TYPE
