@@ -88,3 +88,75 @@ def test_overview_shows_each_class_first_view_beside_its_copies():
     assert np.array_equal(top_left[::2, ::2], (images[0].numpy() * 255).round().astype(np.uint8))
     beside = picture[22 + 22:22 + 150, 134:262, 0]  # beside it: the next class's first view (images 2, 3 are c1)
     assert np.array_equal(beside[::2, ::2], (images[2].numpy() * 255).round().astype(np.uint8))
+
+
+class _Recorder:
+    """A stand-in learner for one cycle: it records what is presented and judged, fails every
+    presentation, and recognizes the views listed in ``right`` correctly when judging."""
+
+    min_information = 0.1
+
+    def __init__(self, right):
+        self.shown, self.judged, self.right = [], [], set(right)
+        self.presentations, self.networks = 0, {}
+
+    def learn(self, env, image, t_ksd):
+        from ftorch.recognition.inference import Recognition
+        from ftorch.recognition.learner import Presentation
+
+        self.shown.append(image)
+        self.presentations += 1
+        return Presentation(Recognition({}, set()), "failed", {})
+
+    def discard_unused(self, since):
+        return []
+
+    def recognize_many(self, env, images, information=None):
+        from ftorch.recognition.inference import Recognition
+
+        self.judged.append((list(images), information))
+        return [Recognition({}, set(env.labels[i]) if i in self.right else set()) for i in images]
+
+
+@pytest.mark.parametrize("right", [range(6), range(4)])
+def test_dynamic_views_present_one_version_of_each_original_and_judge_mistakes_on_the_originals(tmp_path, right):
+    from ftorch.recognition.environment import ImageSet
+    from training.recognition.protocol import Fold, RunConfig
+
+    images, labels = views(shifts=range(2))
+    copies, true = augment(images, labels, 2, seed=0, fold=1)
+    train = ImageSet(images + copies, labels + true)
+    config = RunConfig("test", augment=2, dynamic=True)
+    fold = Fold(1, train, train, config, tmp_path, ["c0", "c1", "c2"], progress=False)
+    learner, order = _Recorder(right), torch.Generator().manual_seed(0)
+    shown = []
+    for _ in range(6):
+        cycle = fold._cycle(learner, order, 0.0, list(range(len(train))))
+        shown.append(learner.shown[-6:])
+        # every presentation failed, yet mistakes count only the originals recognized wrongly, as learning recognizes
+        assert cycle["mistakes"] == 6 - len(right)
+        assert learner.judged[-1] == (list(range(6)), 0.1)
+    for cycle in shown:
+        assert len(cycle) == 6 and sorted(i % 6 for i in cycle) == list(range(6))  # each original once, as some version
+    drawn = [i // 6 for cycle in shown for i in cycle]
+    assert set(drawn) == {0, 1, 2}  # the original and both copies are drawn
+    assert len(learner.shown) == 36 and learner.presentations == 36
+
+
+def test_runner_dynamic_views_need_copies_and_present_as_many_as_the_originals(tmp_path, capsys):
+    from training import run
+    from training.data.datasets import plym_task
+
+    args = ["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1",
+            "--max-cycles", "2", "--quiet", "--device", "cpu"]
+    assert run.main([*args, "--augment", "2", "--dynamic", "--out", str(tmp_path / "a")]) == 0
+    report = json.loads((tmp_path / "a" / "report.json").read_text())
+    stage = report["folds"][0]["stages"][-1]
+    train, _ = plym_task(size=32, seed=0, classes=2).fold(1)
+    assert report["config"]["augment"] == 2 and report["config"]["dynamic"] is True
+    assert stage["presentations"] == stage["cycles"] * len(train)
+    capsys.readouterr()
+    assert run.main([*args, "--dynamic", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "--augment" in err[0]
+    assert not (tmp_path / "b").exists()

@@ -7,7 +7,8 @@ import torch
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import Primitive
 from ftorch.errors import InputError
-from ftorch.recognition.ksd import distinctive_at
+from ftorch.recognition.counting import Counting
+from ftorch.recognition.ksd import distinctive_at, ksd
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.inference import Recognition, outcome, recognize, residual_entropy
 
@@ -169,6 +170,73 @@ def test_a_leak_mixes_every_cpt_entry_with_its_complement_and_keeps_one_miss_fro
     assert net.posterior({"f": 0, "g": 1}) > 0.05  # with the leak, g's presence still speaks for A
 
 
+def _calibration_case(calibrate: bool, selected: set) -> tuple[Counting, ClassNetwork, np.ndarray, np.ndarray]:
+    """Ten instances, 0-4 of A and 5-9 of B, and one node f of A at threshold 0.5 selected on ``selected``:
+    on 0, 1, 5, 6 f separates A from B perfectly, on the others it fires as often on B as on A."""
+    values = np.array([0.9, 0.8, 0.7, 0.2, 0.6, 0.1, 0.3, 0.8, 0.55, 0.4])
+    present = np.arange(10) < 5
+    counting = Counting(calibrate)
+    for i in range(10):
+        counting.instances.add(i, {"A" if present[i] else "B"})
+    counting.instances.set_block(list(range(10)), ["f"], values[None])
+    counting.selected[("A", "f")] = frozenset(selected)
+    net = ClassNetwork("A")
+    net.add_feature("f", threshold=0.5)
+    return counting, net, values, present
+
+
+def _counted_on(values: np.ndarray, present: np.ndarray, rows: list[int], threshold: float, pseudocount: float) -> np.ndarray:
+    """The CPT [c, f] counted by hand on ``rows`` only."""
+    table = np.zeros((2, 2))
+    for i in rows:
+        table[int(present[i]), int(values[i] > threshold)] += 1
+    return (table + pseudocount) / (table.sum(1, keepdims=True) + 2 * pseudocount)
+
+
+def test_calibrated_counting_leaves_a_nodes_selection_images_out_where_enough_remain():
+    """Cut-point and CPT on the held-out instances (brute force); all of them without calibrate or with too few left."""
+    selected = {0, 1, 5, 6}
+    held = [i for i in range(10) if i not in selected]
+    for calibrate, rows in ((True, held), (False, list(range(10)))):
+        counting, net, values, present = _calibration_case(calibrate, selected)
+        counting.estimate(net, pseudocount=1.0)
+        assert np.allclose(net.cpt["f"], _counted_on(values, present, rows, 0.5, 1.0))
+        assert np.allclose(net.prior, [0.5, 0.5])  # the prior counts every instance
+        cuts, powers = counting.discretize("A", ["f"], 0.5)
+        expected = ksd(torch.from_numpy(values[rows][None]), torch.from_numpy(present[rows]),
+                       torch.from_numpy(~present[rows]))
+        assert np.allclose(cuts, expected.cutpoint.numpy()) and np.allclose(powers, expected.distinctive.numpy())
+    # the case tells the two apart: held out, f fires on B as often as on A
+    assert not np.allclose(_counted_on(values, present, held, 0.5, 1.0), _counted_on(values, present, range(10), 0.5, 1.0))
+    # only one instance of A outside the selection images: not enough to count on, so all count
+    counting, net, values, present = _calibration_case(True, {0, 1, 2, 3, 5})
+    counting.estimate(net, pseudocount=1.0)
+    assert np.allclose(net.cpt["f"], _counted_on(values, present, list(range(10)), 0.5, 1.0))
+
+
+def test_a_calibrated_learner_records_saves_and_checks_each_nodes_selection_images(shapes):
+    learner = DistinctiveFeatureLearner(seed=2, calibrate=True)
+    _train(shapes, learner, cycles=2)
+    selected = learner.counting.selected
+    nodes = {(c, f) for c, net in learner.networks.items() for f in net.features}
+    assert selected and set(selected) <= nodes
+    assert all(images <= set(learner.instances.images) and len(images) >= 2 for images in selected.values())
+    state = learner.state_dict()
+    copy = DistinctiveFeatureLearner()
+    copy.load_state_dict(state)
+    assert copy.calibrate and copy.counting.selected == selected
+    for net in learner.networks.values():
+        copy.counting.estimate(copy.networks[net.label], copy.pseudocount)
+        assert all(np.array_equal(copy.networks[net.label].cpt[f], net.cpt[f]) for f in net.features)
+    state["selected"][0][2] = [10**6]
+    with pytest.raises(ValueError, match="not an instance"):
+        DistinctiveFeatureLearner().load_state_dict(state)
+    state.pop("selected")  # an older file: every node counted on all instances
+    older = DistinctiveFeatureLearner()
+    older.load_state_dict(state)
+    assert older.counting.selected == {}
+
+
 def test_options_are_saved_validated_and_refused_with_one_line(shapes):
     learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5,
                                         test_information=0.2, leak=0.05, primitives="texture,edgel")
@@ -176,10 +244,10 @@ def test_options_are_saved_validated_and_refused_with_one_line(shapes):
     copy.load_state_dict(learner.state_dict())
     assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5,
                               "leak": 0.05, "cut_position": 0.5, "test_information": 0.2,
-                              "primitives": (Primitive.EDGEL, Primitive.TEXTURE)}
+                              "primitives": (Primitive.EDGEL, Primitive.TEXTURE), "calibrate": False}
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
                 {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")},
-                {"leak": 0.5}, {"leak": -0.1}, {"leak": float("nan")}, {"primitives": ""}):
+                {"leak": 0.5}, {"leak": -0.1}, {"leak": float("nan")}, {"primitives": ""}, {"calibrate": "yes"}):
         with pytest.raises(InputError):
             DistinctiveFeatureLearner(**bad)
 

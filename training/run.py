@@ -263,7 +263,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
                      args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
                      args.n_ex, args.n_fgen, args.min_information, **learner_options(args),
                      device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
-                     augment=args.augment, incremental=incremental)
+                     augment=args.augment, dynamic=args.dynamic, incremental=incremental)
 
 
 def learner_options(args) -> dict:
@@ -346,6 +346,8 @@ def check_inputs(task: Task, folds: int, augment: int, device: torch.device) -> 
 def recognize_command(args, incremental: bool = False) -> int:
     device = resolve_device(args.device)
     _stages(args.stages)
+    if args.dynamic and not args.augment:
+        raise InputError("--dynamic draws each cycle's training views from the copies of --augment N: give N >= 1")
     if args.seed + args.seeds - 1 > MAX_SEED:
         raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
     DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information,
@@ -643,11 +645,18 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--leak", type=number, default=0.0, metavar="L",
                    help="detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing feature "
                         "does not rule its class out (default 0)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="calibrated counting: count each node's cut-point and CPT on the training views other than "
+                        "those its search selected it on, where enough remain (cross-fitting; default off)")
     p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
                    help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
     p.add_argument("--augment", type=at_least(0, "a number of copies", 100), default=0, metavar="N",
                    help="also train on N perturbed copies of each training view: rotated and scaled, half of them "
                         "occluded, half on procedural clutter (training/data/augment.py; default 0)")
+    p.add_argument("--dynamic", action="store_true",
+                   help="with --augment N: each cycle presents one version of every training view, drawn from the view "
+                        "and its N copies, and a stage ends once the original views are learned (default off: every "
+                        "copy is a training view of its own)")
     p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")

@@ -3,6 +3,14 @@ learned to discriminate, node discretization by KSD (def. 4.2) and CPT estimatio
 
 Nodes are discretized against the classes they were learned to discriminate (all other classes
 where none is recorded); a node whose KSD has no cut-point keeps its threshold.
+
+Calibrated counting (``calibrate``, cross-fitting): a feature is accepted because it separates
+the few images its search measured it on (alg. 4.8: the misrecognized image, the sample, n_ex
+examples per class), so on those images it looks better than on any other: its KSD and its CPT
+are optimistic. With ``calibrate`` on, the cut-point and the CPT of a node are counted on the
+instances *other* than its selection images, wherever those still hold at least ``HELD_OUT``
+measured instances of its class and of the classes it is counted against; otherwise (a class
+with few training views, a feature just added) on all, as the thesis counts.
 """
 from __future__ import annotations
 
@@ -17,16 +25,22 @@ from .inference import Recognition
 from .instances import InstanceList
 from .ksd import distinctive_at, ksd
 
+HELD_OUT = 2  # measured instances each side needs before a calibrated count leaves the selection images out
+
 
 class Counting:
     """The instance list and the discriminated classes of every node, with the counts made from them.
 
-    ``discriminates[(c, f)]``: the classes node f of c's network was learned to tell c from.
+    ``discriminates[(c, f)]``: the classes node f of c's network was learned to tell c from;
+    ``selected[(c, f)]``: the images node f of c's network was selected on (its search's images), which a
+    ``calibrate``-d count leaves out (module docstring).
     """
 
-    def __init__(self):
+    def __init__(self, calibrate: bool = False):
         self.instances = InstanceList()
         self.discriminates: dict[tuple, frozenset] = {}
+        self.selected: dict = {}
+        self.calibrate = calibrate
 
     def measure(self, env: ImageSet, features, images) -> None:
         """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
@@ -41,6 +55,22 @@ class Counting:
         if rec.queried:
             self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
 
+    def held_out(self, label, features: list, values: np.ndarray, present: np.ndarray,
+                 against: np.ndarray) -> np.ndarray:
+        """``values`` (F, n) of nodes ``features`` of class ``label``, with each node's selection images set to NaN (not
+        counted) where ``calibrate`` is on and the other measured instances still hold ``HELD_OUT`` of
+        ``present`` (n,) and of ``against`` (F, n) each; the values unchanged otherwise."""
+        rows = [(k, self.selected[label, f]) for k, f in enumerate(features) if (label, f) in self.selected]
+        if not self.calibrate or not rows:
+            return values
+        column = self.instances.column
+        chosen = np.zeros(values.shape, dtype=bool)
+        chosen[np.repeat([k for k, images in rows], [len(images) for _, images in rows]),
+               [column(i) for _, images in rows for i in images]] = True
+        kept = np.isfinite(values) & ~chosen
+        enough = ((kept & present).sum(1) >= HELD_OUT) & ((kept & against).sum(1) >= HELD_OUT)
+        return np.where(chosen & enough[:, None], np.nan, values)
+
     def discretize(self, label, features: list, cut_position: float,
                    against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
@@ -54,18 +84,19 @@ class Counting:
             if d not in masks:
                 masks[d] = (self.instances.has_any(d) if d else np.ones_like(present)) & ~present
         discriminated = np.stack([masks[d] for d in others])
-        values = self.instances.block(features)
+        values = self.held_out(label, features, self.instances.block(features), present, discriminated)
         result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
 
     def estimate(self, net: ClassNetwork, pseudocount: float, leak: float = 0.0) -> None:
         """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a), with
         the detection-failure ``leak`` of :meth:`ClassNetwork.estimate`."""
-        values = self.instances.block(net.features)
+        present = self.instances.has(net.label)
+        values = self.held_out(net.label, net.features, self.instances.block(net.features), present, ~present)
         thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
         coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
         states = dict(zip(net.features, coded))
-        net.estimate(self.instances.has(net.label), states, pseudocount, leak)
+        net.estimate(present, states, pseudocount, leak)
 
     def reestimate(self, networks: dict[Hashable, ClassNetwork], cut_position: float, pseudocount: float,
                    leak: float = 0.0) -> None:
@@ -106,4 +137,5 @@ class Counting:
                 if f in net:
                     net.remove_feature(f)
                     self.discriminates.pop((label, f), None)
+                    self.selected.pop((label, f), None)
         self.instances.forget(features)

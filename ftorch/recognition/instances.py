@@ -111,6 +111,10 @@ class InstanceList:
             self.features.append(feature)
         return self._feature[feature]
 
+    def column(self, image: Hashable) -> int:
+        """The column of an instance already added."""
+        return self._image[image]
+
     def set(self, image: Hashable, feature: Hashable, value: float) -> None:
         row = self._feature_row(feature)  # may grow the array: look it up first
         self._values[row, self._image[image]] = value

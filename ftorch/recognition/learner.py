@@ -46,6 +46,10 @@ Options for generalization beyond the thesis (each default is the thesis's behav
   texels and edgel pairs (the thesis), and the statistical texture of 7.2.1 where added
   (``ftorch.space.texture``: the intensity distribution around a point, which faces and other
   textured objects need and texels, normalised derivative responses, do not carry).
+- ``calibrate`` (calibrated counting, cross-fitting): a node's cut-point and CPT are counted on
+  the instances other than those its search selected it on, where enough remain
+  (:mod:`ftorch.recognition.counting`), so that the networks trust a feature as much as it
+  fires on views it was not chosen for.
 - ``leak`` l (detection failure): every CPT entry p becomes l + (1 - 2l) p, so one feature
   missing from an unseen view (occluded, rotated away) never rules its class out alone.
 - ``pseudocount`` a: CPTs count (n + a) / (N + 2a). The thesis's relative frequencies (a = 0)
@@ -75,7 +79,7 @@ from .instances import InstanceList, are_stored_values
 KIND = "learner"
 EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
 OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "leak", "cut_position", "test_information",
-           "primitives")
+           "primitives", "calibrate")
 
 
 class Presentation(NamedTuple):
@@ -143,7 +147,7 @@ class DistinctiveFeatureLearner:
     def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
                  search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
                  cut_position: float = 0.5, test_information: float = 0.0, primitives=THESIS_PRIMITIVES,
-                 leak: float = 0.0):
+                 leak: float = 0.0, calibrate: bool = False):
         for name, count in (("n_ex", n_ex), ("n_fgen", n_fgen), ("search_rounds", search_rounds), ("redundancy", redundancy)):
             _whole(name, count, 1)
         _whole("seed", seed, 0, MAX_SEED)
@@ -156,6 +160,8 @@ class DistinctiveFeatureLearner:
             raise InputError(f"leak must lie in [0, 0.5), got {leak}")
         if not 0.0 <= cut_position <= 1.0:
             raise InputError(f"cut_position must lie in [0, 1], got {cut_position}")
+        if not isinstance(calibrate, (bool, np.bool_)):
+            raise InputError(f"calibrate must be True or False, got {calibrate!r}")
         if evidence not in EVIDENCE:
             raise InputError(f"evidence {evidence!r}: expected one of {', '.join(EVIDENCE)}")
         self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
@@ -164,7 +170,7 @@ class DistinctiveFeatureLearner:
         self.pseudocount, self.leak, self.cut_position = float(pseudocount), float(leak), float(cut_position)
         self.generator = torch.Generator().manual_seed(int(seed))  # every random choice; set in place on load
         self.networks: dict[Hashable, ClassNetwork] = {}
-        self.counting = Counting()
+        self.counting = Counting(bool(calibrate))
         self.candidates = CandidateGenerator(self.generator, primitives)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
@@ -178,6 +184,15 @@ class DistinctiveFeatureLearner:
     @property
     def discriminates(self) -> dict[tuple, frozenset]:
         return self.counting.discriminates
+
+    @property
+    def calibrate(self) -> bool:
+        """Whether counts leave out the images each node was selected on (module docstring)."""
+        return self.counting.calibrate
+
+    @calibrate.setter
+    def calibrate(self, value: bool) -> None:
+        self.counting.calibrate = bool(value)
 
     @property
     def primitives(self) -> tuple:
@@ -215,9 +230,13 @@ class DistinctiveFeatureLearner:
         learned or recorded."""
         return self.recognize_many(env, [image])[0]
 
-    def recognize_many(self, env: ImageSet, images) -> list[Recognition]:
-        """Recognize several images: every feature of every network is measured on all of them in one batch."""
-        return self._recognize_many(env, images, self.test_information)
+    def recognize_many(self, env: ImageSet, images, information: float | None = None) -> list[Recognition]:
+        """Recognize several images: every feature of every network is measured on all of them in one
+        batch. ``information``: the stopping threshold in bits (default ``test_information``; the
+        learning recognitions' ``min_information`` judges a training image as learning does)."""
+        if information is not None and not 0.0 <= information < 1.0:
+            raise InputError(f"information must lie in [0, 1) bits, got {information}")
+        return self._recognize_many(env, images, self.test_information if information is None else information)
 
     def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
         images = [env.index(i) for i in images]
@@ -372,6 +391,7 @@ class DistinctiveFeatureLearner:
                     failed.append(candidate)
                     continue
                 self.counting.discriminates[(char, candidate)] = disc
+                self.counting.selected[(char, candidate)] = frozenset(images)
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
                 self.counting.estimate(net, self.pseudocount, self.leak)
@@ -382,6 +402,7 @@ class DistinctiveFeatureLearner:
                     return True
                 net.remove_feature(candidate)
                 del self.counting.discriminates[(char, candidate)]
+                del self.counting.selected[(char, candidate)]
                 self.counting.estimate(net, self.pseudocount, self.leak)
                 failed.append(candidate)
         return False
@@ -418,6 +439,8 @@ class DistinctiveFeatureLearner:
                 "generator": encode_array(self.generator.get_state().numpy().astype(np.float64)),
                 "discriminates": [[_label(c), table.index(f), sorted(map(_label, d), key=str)]
                                   for (c, f), d in self.discriminates.items()],
+                "selected": [[_label(c), table.index(f), sorted(map(_label, images), key=str)]
+                             for (c, f), images in self.counting.selected.items()],
                 "usage": [[table.index(f), n] for f, n in self.usage.items()],
                 "instances": {"images": [_label(i) for i in instances.images],
                               "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
@@ -463,12 +486,14 @@ class DistinctiveFeatureLearner:
         if not self.networks and "instances" not in state:
             raise ValueError("a recognition file without a class network")  # a fresh learner's full state has none
         self.trainable = "instances" in state
-        self.counting, self.usage = Counting(), {}
+        self.counting, self.usage = Counting(self.calibrate), {}
         self.generator.set_state(torch.Generator().get_state())  # in place: the parts hold this generator
         if not self.trainable:
             return
         self.generator.set_state(torch.from_numpy(decode_array(state["generator"], shape=GENERATOR_STATE).astype(np.uint8)))
         self.counting.discriminates.update({(c, at(f)): frozenset(d) for c, f, d in state["discriminates"]})
+        # files written before selection images were recorded count every node on all instances
+        self.counting.selected.update({(c, at(f)): frozenset(i) for c, f, i in state.get("selected", [])})
         self.usage = {at(f): _count(n) for f, n in state["usage"]}
         block = state["instances"]
         for image, labels in zip(block["images"], block["labels"]):
@@ -482,6 +507,9 @@ class DistinctiveFeatureLearner:
             self.instances.set_block(self.instances.images, columns, values.T)
         if len(self.instances.features) < len(columns):
             raise ValueError("an instance feature listed twice")
+        known = set(self.instances.images)
+        if any(not images <= known for images in self.counting.selected.values()):
+            raise ValueError("a node selected on an image that is not an instance")
 
     def save(self, path, training: bool = False) -> None:
         """Write the learner to ``path`` (JSON, atomically): what recognition needs, or with

@@ -118,10 +118,12 @@ class RunConfig:
     cut_position: float = 0.5
     test_information: float = 0.0
     primitives: str = "texel,edgel"
+    calibrate: bool = False
     device: str = "cpu"
     stages: str = "0"
     max_cycles: int = 20
     augment: int = 0
+    dynamic: bool = False
     incremental: bool = False
 
     def to_dict(self) -> dict:
@@ -224,7 +226,7 @@ class Fold:
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
         stored = data.get("config")
         if isinstance(stored, dict):  # a run written before these options existed ran with their defaults
-            stored = {**{k: getattr(RunConfig, k) for k in ("leak", "primitives")}, **stored}
+            stored = {**{k: getattr(RunConfig, k) for k in ("leak", "primitives", "calibrate", "dynamic")}, **stored}
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")
@@ -288,17 +290,33 @@ class Fold:
         return entry, learner
 
     def _cycle(self, learner: DistinctiveFeatureLearner, order: torch.Generator, t_ksd: float, indices: list[int]) -> dict:
-        """One pass over the training images ``indices`` in a fresh order, then discarding (alg. 5.3 step 2)."""
+        """One pass over the training images ``indices`` in a fresh order, then discarding (alg. 5.3 step 2).
+
+        Dynamic training views (``config.dynamic``): the training set is the original views followed
+        by ``config.augment`` copies of each (training.data.augment); a cycle presents every original
+        view once, each time as a version drawn uniformly from the view and its copies, so no copy
+        has to be learned for its own sake. Mistakes are then judged on the originals: after the
+        cycle, each is recognized as in learning (nothing is learned), and a stage ends when all are right."""
         begin = learner.presentations
         results, ksd_min = [], 1.0
-        for k in torch.randperm(len(indices), generator=order).tolist():
-            i = indices[k]
+        versions = self.config.augment + 1 if self.config.dynamic else 1
+        views = len(self.train) // versions
+        shown = [i for i in indices if i < views]
+        for k in torch.randperm(len(shown), generator=order).tolist():
+            i = shown[k]
+            if versions > 1:
+                i += views * int(torch.randint(versions, (), generator=order))
             p = learner.learn(self.train, i, t_ksd)
             results.append(p.result)
             if p.ksd is not None:
                 ksd_min = min(ksd_min, p.ksd)
         discarded = learner.discard_unused(since=begin + 1)
-        return {"mistakes": sum(r in MISTAKES for r in results), "expert": results.count("expert"),
+        if versions > 1:
+            judged = learner.recognize_many(self.train, shown, learner.min_information)
+            mistakes = sum(outcome(r.recognized, self.train.labels[i]) != "correct" for r, i in zip(judged, shown))
+        else:
+            mistakes = sum(r in MISTAKES for r in results)
+        return {"mistakes": mistakes, "expert": results.count("expert"),
                 "ksd_min": ksd_min, "discarded": len(discarded),
                 "features": sum(len(n.features) for n in learner.networks.values())}
 
