@@ -1,6 +1,7 @@
 """The accuracy-per-byte front: packed networks, the peers' budgets, and the tradeoff command."""
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -266,3 +267,16 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 4 and "learned different tasks (size differ)" in errors[0] and "is missing" in errors[1]
     assert "not inside one" in errors[2] and not (runs / "k1" / "front").exists()
+
+
+def test_runs_are_named_by_the_options_they_differ_in_and_older_configs_by_their_defaults():
+    from training.recognition.protocol import RunConfig
+    from training.recognition.tradeoff import settings
+
+    new = RunConfig("folder", redundancy=3, calibrate=True, augment=2, dynamic=True).to_dict()
+    old = RunConfig("folder", redundancy=3).to_dict()
+    for key in ("calibrate", "dynamic", "leak"):  # written before these options existed
+        old.pop(key)
+    assert settings([old, new], [Path("a"), Path("b")]) == ["calibrate False, augment 0, dynamic False",
+                                                            "calibrate True, augment 2, dynamic True"]
+    assert settings([old, old], [Path("a"), Path("b")]) == ["a", "b"]
