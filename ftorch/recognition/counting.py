@@ -39,7 +39,7 @@ class Counting:
     def __init__(self, calibrate: bool = False):
         self.instances = InstanceList()
         self.discriminates: dict[tuple, frozenset] = {}
-        self.selected: dict = {}
+        self.selected: dict[tuple, frozenset] = {}
         self.calibrate = calibrate
 
     def measure(self, env: ImageSet, features, images) -> None:
