@@ -127,6 +127,13 @@ def _whole(name: str, value, minimum: int, maximum: int | None = None) -> int:
     return int(value)
 
 
+def _bits(name: str, value) -> float:
+    """A stopping threshold of alg. 4.4 in bits: [0, 1); InputError otherwise."""
+    if not 0.0 <= value < 1.0:
+        raise InputError(f"{name} must lie in [0, 1) bits, got {value}")
+    return value
+
+
 def _count(value) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"count {value!r} is not an integer >= 0")
@@ -152,8 +159,7 @@ class DistinctiveFeatureLearner:
             _whole(name, count, 1)
         _whole("seed", seed, 0, MAX_SEED)
         for name, bits in (("min_information", min_information), ("test_information", test_information)):
-            if not 0.0 <= bits < 1.0:
-                raise InputError(f"{name} must lie in [0, 1) bits, got {bits}")
+            _bits(name, bits)
         if not 0.0 <= pseudocount < float("inf"):
             raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
         if not 0.0 <= leak < 0.5:
@@ -234,9 +240,8 @@ class DistinctiveFeatureLearner:
         """Recognize several images: every feature of every network is measured on all of them in one
         batch. ``information``: the stopping threshold in bits (default ``test_information``; the
         learning recognitions' ``min_information`` judges a training image as learning does)."""
-        if information is not None and not 0.0 <= information < 1.0:
-            raise InputError(f"information must lie in [0, 1) bits, got {information}")
-        return self._recognize_many(env, images, self.test_information if information is None else information)
+        bits = self.test_information if information is None else _bits("information", information)
+        return self._recognize_many(env, images, bits)
 
     def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
         images = [env.index(i) for i in images]
