@@ -5,10 +5,10 @@ One package per part of the thesis, in the order data flows through them: :mod:`
 learning) and :mod:`ftorch.grasp` (chapter 6, grasp pre-shaping); input rules, errors and
 checkpoints are shared by all three.
 """
-from .errors import InputError
+from .errors import InputError, NotFittedError
 from .grasp import GraspLearner
 from .images import as_image_batch, load_image
-from .recognition import DistinctiveFeatureLearner, ImageSet
+from .recognition import DistinctiveFeatureLearner, ImageSet, LearnerSettings
 from .space import (BLOB, CORNER, EDGEL, FeatureSpace, ImageRecords, PartKind, SalientPoints, ScaleSpace,
                     ScaleSpaceOutput, feature_values)
 from .vml import resolve_vml
@@ -17,6 +17,6 @@ resolve_vml()  # before any parallel float op can run: see ftorch.vml
 
 __all__ = [
     "BLOB", "CORNER", "DistinctiveFeatureLearner", "EDGEL", "FeatureSpace", "GraspLearner", "ImageRecords", "ImageSet",
-    "InputError", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput", "as_image_batch", "feature_values",
+    "InputError", "LearnerSettings", "NotFittedError", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput", "as_image_batch", "feature_values",
     "load_image",
 ]

@@ -3,3 +3,7 @@
 
 class InputError(ValueError):
     """An image, tensor, file or parameter given to ftorch cannot be used as it is."""
+
+
+class NotFittedError(InputError, AttributeError):
+    """A learner asked to answer, or to be saved for answering, before it has learned any class."""

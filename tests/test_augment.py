@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from ftorch.recognition.settings import LearnerSettings
 from training.data import perturb
 from training.data.augment import augment, overview, texture
 
@@ -94,19 +95,19 @@ class _Recorder:
     """A stand-in learner for one cycle: it records what is presented and judged, fails every
     presentation, and recognizes the views listed in ``right`` correctly when judging."""
 
-    min_information = 0.1
+    settings = LearnerSettings(min_information=0.1)
 
     def __init__(self, right):
         self.shown, self.judged, self.right = [], [], set(right)
         self.presentations, self.networks = 0, {}
 
     def learn(self, env, image, t_ksd):
-        from ftorch.recognition.inference import Recognition
+        from ftorch.recognition.inference import Recognition, Result
         from ftorch.recognition.learner import Presentation
 
         self.shown.append(image)
         self.presentations += 1
-        return Presentation(Recognition({}, set()), "failed", {})
+        return Presentation(Recognition({}, set()), Result.FAILED, {})
 
     def discard_unused(self, since):
         return []
@@ -129,12 +130,13 @@ def test_dynamic_views_present_one_version_of_each_original_and_judge_mistakes_o
     config = RunConfig("test", augment=2, dynamic=True)
     fold = Fold(1, train, train, config, tmp_path, ["c0", "c1", "c2"], progress=False)
     learner, order = _Recorder(right), torch.Generator().manual_seed(0)
+    schedule = fold.schedule(learner, order, 0, 20)
     shown = []
     for _ in range(6):
-        cycle = fold._cycle(learner, order, 0.0, list(range(len(train))))
+        cycle = schedule._cycle(list(range(len(train))))
         shown.append(learner.shown[-6:])
         # every presentation failed, yet mistakes count only the originals recognized wrongly, as learning recognizes
-        assert cycle["mistakes"] == 6 - len(right)
+        assert cycle.mistakes == 6 - len(right)
         assert learner.judged[-1] == (list(range(6)), 0.1)
     for cycle in shown:
         assert len(cycle) == 6 and sorted(i % 6 for i in cycle) == list(range(6))  # each original once, as some version

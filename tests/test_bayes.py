@@ -34,7 +34,7 @@ def random_network(rng, n_features: int, deterministic: bool = False, table_limi
 def pgmpy_query(net: ClassNetwork, variables, evidence):
     from pgmpy.inference import VariableElimination
 
-    name = {CLASS: CLASS, **{k: f"f{i}" for i, k in enumerate(net.features)}}
+    name = net.node_names()
     result = VariableElimination(net.to_pgmpy()).query(
         [name[v] for v in variables], evidence={name[k]: v for k, v in evidence.items()}, show_progress=False)
     order = [result.variables.index(name[v]) for v in variables]
@@ -244,8 +244,8 @@ def test_cycles_and_unknown_arcs_are_refused_and_bif_exports():
     with pytest.raises(ValueError, match="not in the network"):
         net.add_feature("d", parents=["zzz"])
     bif = net.to_bif()
-    assert "variable class" in bif and "probability ( f1 | class, f0 )" in bif
-    assert '<NAME>f1</NAME>' in net.to_xmlbif()
+    assert "network x {" in bif and "variable class" in bif and "probability ( f1_b | class, f0_a )" in bif
+    assert '<NAME>f1_b</NAME>' in net.to_xmlbif() and "network class_3 {" in ClassNetwork(3).to_bif()
     net.remove_feature("a")
     assert net.parents["b"] == () and net.cpt["b"].shape == (2, 2)
 

@@ -10,6 +10,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.counting import Counting
 from ftorch.recognition.ksd import distinctive_at, ksd
 from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.inference import Recognition, outcome, recognize, residual_entropy
 
 from .test_learner import shapes  # noqa: F401  (fixture)
@@ -29,7 +30,7 @@ def _train(env, learner, cycles: int, t_ksd: float = 0.0, order_seed: int = 0) -
 def _search(env, rounds: int, succeed_at: int | None, monkeypatch) -> tuple[bool, list, list]:
     """A search for class 0 against 1 in which only the ``succeed_at``-th candidate discretized reaches
     the target; returns (found, the alg. 4.10 methods called, the candidates discretized)."""
-    learner = DistinctiveFeatureLearner(seed=1, search_rounds=rounds)
+    learner = DistinctiveFeatureLearner.thesis(seed=1, search_rounds=rounds)
     _train(env, learner, cycles=1)
     calls, tried = [], []
     generate = learner.candidates
@@ -66,7 +67,7 @@ def test_the_search_goes_on_past_one_call_of_alg_4_10_and_stops_at_the_first_suc
 def test_redundancy_scores_a_pair_by_its_kth_strongest_feature_over_the_whole_network():
     """A (true, certain) holds f, separating it from B and C, and g, separating it from C only."""
     def learner(k):
-        out = DistinctiveFeatureLearner(redundancy=k)
+        out = DistinctiveFeatureLearner.thesis(redundancy=k)
         rows = [(0, "A", .9, .9), (1, "A", .8, .8), (2, "B", .1, .85), (3, "B", .2, .9), (4, "C", .1, .1), (5, "C", .2, .2)]
         for image, label, f, g in rows:
             out.instances.add(image, {label})
@@ -96,18 +97,18 @@ def _support(learner, c, d) -> list[float]:
 
 @pytest.mark.parametrize("k", [2, 3])
 def test_after_a_clean_cycle_every_needed_distinction_has_k_distinctive_features(shapes, k):
-    learner = DistinctiveFeatureLearner(seed=0, redundancy=k)
+    learner = DistinctiveFeatureLearner.thesis(seed=0, redundancy=k)
     history = _train(shapes, learner, cycles=12)
     clean = [n for n, h in enumerate(history) if all(r == "correct" for r in h)]
     assert clean, history
-    learner = DistinctiveFeatureLearner(seed=0, redundancy=k)
+    learner = DistinctiveFeatureLearner.thesis(seed=0, redundancy=k)
     _train(shapes, learner, cycles=clean[0] + 1)
     labels = sorted({c for i in range(18) for c in shapes.labels[i]})
     for c in labels:
         for d in labels:
             if d != c:
                 assert sum(p > 0 for p in _support(learner, c, d)) >= k, (c, d)
-    single = DistinctiveFeatureLearner(seed=0)
+    single = DistinctiveFeatureLearner.thesis(seed=0)
     _train(shapes, single, cycles=clean[0] + 1)
     assert sum(len(n.features) for n in single.networks.values()) < sum(len(n.features) for n in learner.networks.values())
 
@@ -125,7 +126,7 @@ def test_positive_evidence_enters_presence_only():
 
 
 def test_a_positive_evidence_learner_recognizes_with_presence_only(shapes):
-    learner = DistinctiveFeatureLearner(seed=0, evidence="positive")
+    learner = DistinctiveFeatureLearner.thesis(seed=0, evidence="positive")
     _train(shapes, learner, cycles=3)
     for image in range(18, 30):
         rec = learner.recognize(shapes, image)
@@ -215,41 +216,42 @@ def test_calibrated_counting_leaves_a_nodes_selection_images_out_where_enough_re
 
 
 def test_a_calibrated_learner_records_saves_and_checks_each_nodes_selection_images(shapes):
-    learner = DistinctiveFeatureLearner(seed=2, calibrate=True)
+    learner = DistinctiveFeatureLearner.thesis(seed=2, calibrate=True)
     _train(shapes, learner, cycles=2)
     selected = learner.counting.selected
     nodes = {(c, f) for c, net in learner.networks.items() for f in net.features}
     assert selected and set(selected) <= nodes
     assert all(images <= set(learner.instances.images) and len(images) >= 2 for images in selected.values())
     state = learner.state_dict()
-    copy = DistinctiveFeatureLearner()
+    copy = DistinctiveFeatureLearner.thesis()
     copy.load_state_dict(state)
-    assert copy.calibrate and copy.counting.selected == selected
+    assert copy.settings.calibrate and copy.counting.calibrate and copy.counting.selected == selected
     for net in learner.networks.values():
-        copy.counting.estimate(copy.networks[net.label], copy.pseudocount)
+        copy.counting.estimate(copy.networks[net.label], copy.settings.pseudocount)
         assert all(np.array_equal(copy.networks[net.label].cpt[f], net.cpt[f]) for f in net.features)
     state["selected"][0][2] = [10**6]
     with pytest.raises(ValueError, match="not an instance"):
-        DistinctiveFeatureLearner().load_state_dict(state)
+        DistinctiveFeatureLearner.thesis().load_state_dict(state)
     state.pop("selected")  # an older file: every node counted on all instances
-    older = DistinctiveFeatureLearner()
+    older = DistinctiveFeatureLearner.thesis()
     older.load_state_dict(state)
     assert older.counting.selected == {}
 
 
 def test_options_are_saved_validated_and_refused_with_one_line(shapes):
-    learner = DistinctiveFeatureLearner(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5,
+    learner = DistinctiveFeatureLearner.thesis(search_rounds=3, redundancy=2, evidence="positive", pseudocount=0.5,
                                         test_information=0.2, leak=0.05, primitives="texture,edgel")
-    copy = DistinctiveFeatureLearner()
+    copy = DistinctiveFeatureLearner.thesis()
     copy.load_state_dict(learner.state_dict())
-    assert copy.options() == {"search_rounds": 3, "redundancy": 2, "evidence": "positive", "pseudocount": 0.5,
-                              "leak": 0.05, "cut_position": 0.5, "test_information": 0.2,
-                              "primitives": (Primitive.EDGEL, Primitive.TEXTURE), "calibrate": False}
+    assert copy.settings == LearnerSettings(n_ex=5, n_fgen=10, min_information=0.0, search_rounds=3, redundancy=2,
+                                            evidence="positive", pseudocount=0.5, leak=0.05, cut_position=0.5,
+                                            test_information=0.2, primitives=(Primitive.EDGEL, Primitive.TEXTURE),
+                                            calibrate=False)
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
                 {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")},
                 {"leak": 0.5}, {"leak": -0.1}, {"leak": float("nan")}, {"primitives": ""}, {"calibrate": "yes"}):
         with pytest.raises(InputError):
-            DistinctiveFeatureLearner(**bad)
+            DistinctiveFeatureLearner.thesis(**bad)
 
 
 @pytest.mark.parametrize("option", [["--search-rounds", "0"], ["--redundancy", "0"], ["--pseudocount", "-1"],
@@ -275,4 +277,4 @@ def test_the_cut_position_moves_the_cut_point_within_its_gap_and_nothing_else(po
     assert middle.cutpoint.item() == pytest.approx(0.5) and moved.cutpoint.item() == pytest.approx(0.3 + 0.4 * position)
     assert torch.equal(middle.distinctive, moved.distinctive) and torch.equal(middle.distance, moved.distance)
     with pytest.raises(InputError, match="cut_position"):
-        DistinctiveFeatureLearner(cut_position=1.5)
+        DistinctiveFeatureLearner.thesis(cut_position=1.5)

@@ -126,7 +126,7 @@ def test_the_undamaged_file_loads(saved, tmp_path):
 
 
 def test_network_validation_agrees_with_pgmpy(saved):
-    learner = DistinctiveFeatureLearner()
+    learner = DistinctiveFeatureLearner.thesis()
     learner.load_state_dict(saved["learner"])
     for net in learner.networks.values():
         net.validate()

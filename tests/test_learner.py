@@ -42,7 +42,7 @@ def shapes() -> ImageSet:
 
 
 def train(env: ImageSet, seed: int, cycles: int = 10):
-    learner = DistinctiveFeatureLearner(seed=seed)
+    learner = DistinctiveFeatureLearner.thesis(seed=seed)
     order = torch.Generator().manual_seed(seed)
     history = []
     for _ in range(cycles):
@@ -76,14 +76,14 @@ def test_same_seed_same_learner(shapes):
     ({"A": 0.3, "B": 0.4, "C": 0.4, "D": 0.3, "E": 0.2}, {"A", "B"}, ("A", {"C"}, True)),    # ignorant
 ])
 def test_true_and_mistaken_classes_follow_table_4_1(beliefs, true, expected):
-    learner = DistinctiveFeatureLearner()
+    learner = DistinctiveFeatureLearner.thesis()
     rec = Recognition(beliefs, {c for c, p in beliefs.items() if p > 0.5}, beliefs=[beliefs])
     char, disc, char_is_true = learner.choose_classes(rec, frozenset(true))
     assert (char, set(disc), char_is_true) == expected
 
 
 def test_zero_beliefs_consult_the_earlier_stage():
-    learner = DistinctiveFeatureLearner()
+    learner = DistinctiveFeatureLearner.thesis()
     earlier = {"A": 0.4, "B": 0.4, "C": 0.3, "D": 0.3, "E": 0.2}
     final = dict.fromkeys(earlier, 0.0)
     rec = Recognition(final, set(), beliefs=[earlier, final])
@@ -250,7 +250,7 @@ def test_discard_unused_removes_features_and_recounts(shapes):
     assert all(f not in learner.instances.features and f not in learner.usage for f in dropped)
     for label, net in learner.networks.items():  # re-counted: the CPTs are those a fresh estimate gives
         tables = {f: net.cpt[f].copy() for f in net.features}
-        learner.counting.estimate(learner.networks[label], learner.pseudocount)
+        learner.counting.estimate(learner.networks[label], learner.settings.pseudocount)
         assert all(np.array_equal(tables[f], net.cpt[f]) for f in net.features)
 
 
@@ -281,7 +281,7 @@ def test_recognition_file_holds_the_networks_only_recognizes_alike_and_refuses_t
 
 def test_choose_pair_takes_the_least_well_discriminated_pair_alg_5_2():
     """Class A (true, uncertain) has a feature that separates it from C perfectly but not from B."""
-    learner = DistinctiveFeatureLearner()
+    learner = DistinctiveFeatureLearner.thesis()
     for image, label, value in [(0, "A", 0.9), (1, "A", 0.8), (2, "B", 0.85), (3, "B", 0.1), (4, "C", 0.1), (5, "C", 0.2)]:
         learner.instances.add(image, {label})
         learner.instances.set(image, "f", value)
@@ -313,7 +313,7 @@ def test_expert_features_meet_the_ksd_target(shapes):
             assert p.entropy[c] > 0 and p.ksd < 0.9 and (c in shapes.labels[i]) != (d in shapes.labels[i])
         if p.result == "expert":
             (new,) = set(learner.networks[p.pair[0]].features) - before[p.pair[0]]
-            assert learner.counting.discretize(p.pair[0], [new], learner.cut_position)[1][0] >= 0.9
+            assert learner.counting.discretize(p.pair[0], [new], learner.settings.cut_position)[1][0] >= 0.9
             assert learner.discriminates[(p.pair[0], new)] == {p.pair[1]}
             accepted += 1
     assert accepted > 0
@@ -327,9 +327,9 @@ def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
     stops where no unqueried feature has more than ``bits`` of information with any class."""
     learner, _ = train(shapes, seed=0)
     for image in range(18, 30):
-        learner.test_information = 0.0
+        learner.set_params(test_information=0.0)
         full = learner.recognize(shapes, image)
-        learner.test_information = bits
+        learner.set_params(test_information=bits)
         short = learner.recognize(shapes, image)
         assert short.queried == full.queried[:len(short.queried)]
         states = {label: net.state({f: int(short.values[f] > net.threshold[f]) for f in short.queried if f in net})
@@ -338,10 +338,10 @@ def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
                      zip(net.features, net.evaluate(states[label])[1]) if f not in short.values]
         assert max(remaining, default=0.0) <= bits
     with pytest.raises(InputError, match="min_information"):
-        DistinctiveFeatureLearner(min_information=1.5)
+        DistinctiveFeatureLearner.thesis(min_information=1.5)
     with pytest.raises(InputError, match="test_information"):
-        DistinctiveFeatureLearner(test_information=-0.1)
-    assert DistinctiveFeatureLearner(min_information=0.25).state_dict()["min_information"] == 0.25
+        DistinctiveFeatureLearner.thesis(test_information=-0.1)
+    assert DistinctiveFeatureLearner.thesis(min_information=0.25).state_dict()["min_information"] == 0.25
 
 
 def test_learning_stops_at_min_information_and_answers_at_test_information(shapes):
@@ -349,7 +349,7 @@ def test_learning_stops_at_min_information_and_answers_at_test_information(shape
     decide what is learned; the learner's answers stop at ``test_information``. A state written
     before ``test_information`` existed answers with ``min_information``, as it did then."""
     def taught(test_bits):
-        learner = DistinctiveFeatureLearner(seed=0, min_information=0.3, test_information=test_bits, redundancy=3,
+        learner = DistinctiveFeatureLearner.thesis(seed=0, min_information=0.3, test_information=test_bits, redundancy=3,
                                             pseudocount=1)
         results = [learner.learn(shapes, i, t_ksd=0.9).result for i in list(range(18)) * 3]
         return learner, results
@@ -365,14 +365,14 @@ def test_learning_stops_at_min_information_and_answers_at_test_information(shape
     first = full.learn(shapes, 0).recognition  # a recognition inside learning
     assert first.queried == short.recognize(shapes, 0).queried
     del state["test_information"]
-    old = DistinctiveFeatureLearner()
+    old = DistinctiveFeatureLearner.thesis()
     old.load_state_dict(state)
-    assert old.test_information == 0.3 and old.options() == short.options()
+    assert old.settings.test_information == 0.3 and old.settings == short.settings
     # set_params: one way to answer with other settings, validated like the constructor
-    assert full.set_params(test_information=0.3) is full and full.options() == short.options()
+    assert full.set_params(test_information=0.3) is full and full.settings == short.settings
     assert [len(full.recognize(shapes, i).queried) for i in range(18, 30)] == asked_short
     with pytest.raises(InputError, match="test_information must lie in"):
         full.set_params(test_information=1.5)
     with pytest.raises(InputError, match="unknown learner options \\['bits'\\]"):
         full.set_params(bits=0.1)
-    assert full.test_information == 0.3  # a refused change changes nothing
+    assert full.settings.test_information == 0.3  # a refused change changes nothing

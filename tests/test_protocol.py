@@ -21,10 +21,12 @@ from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training import run
 from training.plots import figure_rgb, fold_curves_figure
 from training.data.datasets import Task, plym_task
-from training.recognition.protocol import Fold, FoldState, RunConfig, next_target
+from ftorch.recognition.settings import LearnerSettings
+from ftorch.recognition.stages import ClassAdded, Progress, next_target
+from training.recognition.protocol import Fold, FoldState, RunConfig
 from training.recognition.report import growth, growth_over_seeds, seed_study, write_markdown
 
-CONFIG = RunConfig("plym4", seed=0, n_ex=5, n_fgen=10)
+CONFIG = RunConfig("plym4", seed=0, learner=LearnerSettings.thesis())
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +102,7 @@ def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_
     both learn the same. The clock is faked: each reading advances it by one second."""
     writes = []
     save = Fold._save
-    monkeypatch.setattr(Fold, "_save", lambda self, learner, order, state: (writes.append(state.total_cycles),
+    monkeypatch.setattr(Fold, "_save", lambda self, learner, order, state: (writes.append(state.progress.total_cycles),
                                                                              save(self, learner, order, state)))
     every, learner = make_fold(small_task, tmp_path / "every").run(max_cycles=2, stages=1)
     steps = len(writes)
@@ -365,11 +367,11 @@ def test_seeds_and_incremental_commands(tmp_path, capsys):
 
 
 def test_the_run_config_defaults_to_the_library_learner_and_the_fold_state_is_checked():
-    learner = RunConfig("t").learner(3)
-    assert learner.options() == DistinctiveFeatureLearner().options()
-    assert (learner.n_ex, learner.n_fgen, learner.min_information) == (5, 10, 0.0)
+    learner = RunConfig("t").new_learner(3)
+    assert learner.settings == DistinctiveFeatureLearner().settings == LearnerSettings()
+    assert (learner.settings.n_ex, learner.settings.min_information, learner.seed) == (5, 0.1, 3)
     assert RunConfig("t", seed=2).fold_seed(3) == 2003
-    state = FoldState(phase=1, added=[{"classes": 3}])
+    state = FoldState(Progress(phase=1, added=[ClassAdded(3, "cube", 4, 2)]))
     assert FoldState.from_dict(json.loads(json.dumps(state.to_dict()))) == state
     with pytest.raises(ValueError, match="progress fields"):
         FoldState.from_dict({**state.to_dict(), "extra": 1})

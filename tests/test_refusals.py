@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from ftorch import FeatureSpace, InputError, as_image_batch
+from ftorch import FeatureSpace, InputError, NotFittedError, as_image_batch
 from ftorch.checkpoint import MAX_BYTES
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -250,7 +250,7 @@ def test_a_learner_with_integer_labels_evaluates_folders_named_by_them(tmp_path)
 ])
 def test_learner_options_are_whole_numbers_in_range(options, message):
     with pytest.raises(InputError, match=message):
-        DistinctiveFeatureLearner(**options)
+        DistinctiveFeatureLearner.thesis(**options)
 
 
 def test_a_meta_tensor_is_refused():
@@ -286,13 +286,17 @@ def test_labels_are_whole_values_and_image_positions_are_checked():
     with pytest.raises(InputError, match="labels of image 0: dict is not a label"):
         ImageSet(images, [{"a": 1}, 2])
     env = ImageSet(images, [0, 1])
-    learner = DistinctiveFeatureLearner()
+    learner = DistinctiveFeatureLearner.thesis()
+    with pytest.raises(NotFittedError, match="learned no class yet"):
+        learner.recognize(env, 0)
     for bad in (-1, 99, 1.0, True):
         with pytest.raises(InputError, match=rf"image {bad!r}: expected a position in this image set, an integer from 0 to 1"):
             learner.learn(env, bad)
+    assert learner.presentations == 0
+    learner.learn(env, 0)
+    for bad in (-1, 99, 1.0, True):
         with pytest.raises(InputError, match="expected a position in this image set"):
             learner.recognize(env, bad)
-    assert learner.presentations == 0
 
 
 def test_an_entry_that_holds_several_images_is_refused_and_chw_colour_is_one_image():

@@ -148,7 +148,7 @@ def test_primitive_choices_are_validated_and_canonical():
         with pytest.raises(InputError):
             primitive_set(bad)
     with pytest.raises(InputError):
-        DistinctiveFeatureLearner(primitives="blob")
+        DistinctiveFeatureLearner.thesis(primitives="blob")
 
 
 def test_the_thesis_primitives_draw_exactly_as_the_two_kinds_always_did(records):
@@ -185,7 +185,7 @@ def test_texture_tells_apart_what_texels_and_edgels_cannot():
     env = ImageSet(images, labels)
     results = {}
     for primitives in ("texel,edgel", "texture"):
-        learner = DistinctiveFeatureLearner(seed=0, primitives=primitives, pseudocount=1.0)
+        learner = DistinctiveFeatureLearner.thesis(seed=0, primitives=primitives, pseudocount=1.0)
         for _ in range(6):
             for i in range(12):
                 learner.learn(env, i)
@@ -207,18 +207,18 @@ def test_texture_tells_apart_what_texels_and_edgels_cannot():
 def test_the_learners_primitives_are_saved_and_an_older_state_means_the_thesis(tmp_path):
     images, labels = shifted_pairs(3)
     env = ImageSet(images, labels)
-    learner = DistinctiveFeatureLearner(seed=0, primitives="texture,texel")
+    learner = DistinctiveFeatureLearner.thesis(seed=0, primitives="texture,texel")
     for i in range(6):
         learner.learn(env, i)
     state = json.loads(json.dumps(learner.state_dict()))
     assert state["primitives"] == ["texel", "texture"]
-    again = DistinctiveFeatureLearner()
+    again = DistinctiveFeatureLearner.thesis()
     again.load_state_dict(state)
-    assert again.primitives == (Primitive.TEXEL, Primitive.TEXTURE) and again.candidates.primitives == again.primitives
+    assert again.settings.primitives == (Primitive.TEXEL, Primitive.TEXTURE) and again.candidates.primitives == again.settings.primitives
     del state["primitives"]
-    older = DistinctiveFeatureLearner(primitives="texture")
+    older = DistinctiveFeatureLearner.thesis(primitives="texture")
     older.load_state_dict(state)
-    assert older.primitives == THESIS_PRIMITIVES
+    assert older.settings.primitives == THESIS_PRIMITIVES == older.candidates.primitives
 
 
 def test_the_runner_refuses_an_unknown_primitive_in_one_line(tmp_path):

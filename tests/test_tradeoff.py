@@ -270,11 +270,12 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
 
 
 def test_runs_are_named_by_the_options_they_differ_in_and_older_configs_by_their_defaults():
+    from ftorch.recognition.settings import LearnerSettings
     from training.recognition.protocol import RunConfig
     from training.recognition.tradeoff import settings
 
-    new = RunConfig("folder", redundancy=3, calibrate=True, augment=2, dynamic=True).to_dict()
-    old = RunConfig("folder", redundancy=3).to_dict()
+    new = RunConfig("folder", learner=LearnerSettings(calibrate=True), augment=2, dynamic=True).to_dict()
+    old = RunConfig("folder").to_dict()
     for key in ("calibrate", "dynamic", "leak"):  # written before these options existed
         old.pop(key)
     assert settings([old, new], [Path("a"), Path("b")]) == ["calibrate False, augment 0, dynamic False",

@@ -36,7 +36,7 @@ import shutil  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
 from contextlib import ExitStack, nullcontext
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +47,9 @@ from ftorch.checkpoint import write_text
 from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
 from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
-from ftorch.recognition.candidates import Primitive, primitive_set
-from ftorch.recognition.learner import EVIDENCE, OPTIONS, DistinctiveFeatureLearner
+from ftorch.recognition.candidates import primitive_set
+from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.settings import Evidence, LearnerSettings
 from ftorch.space.record import ImageRecords, require_memory
 from training.data.augment import augment, overview as augmented_overview
 from training.cli.arguments import MAX_SEED, Parser, at_least, number, seed
@@ -189,15 +190,6 @@ def save_pictures(pictures: list[tuple[str, np.ndarray]], folder: Path, ledger: 
     return paths
 
 
-MIN_INFORMATION = 0.1  # bits; see docs/decisions.md, chapter 5
-# Answers stop only at I_max = 0, as alg. 4.4 is printed: chosen on seeds 5-9 at 128x128 against
-# 0.1 (the learning threshold) and values between; see docs/results.md (generalization).
-TEST_INFORMATION = 0.0
-# The runner's generalization settings (the library's defaults are the thesis's): chosen on seed 5
-# at 128x128 and seeds 5-6 at 32x32, never on the reported seeds 0-4; see docs/results.md.
-PSEUDOCOUNT, REDUNDANCY = 1.0, 3
-PRIMITIVES = "texel,edgel"
-
 # A fold's checkpoint is written at most once a minute (and at its end): a write compresses the
 # value cache and the instance list anew, seconds per cycle at 20 COIL classes in 128x128.
 CHECKPOINT_EVERY = 60
@@ -261,14 +253,9 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
     return RunConfig(task.name, str(Path(args.data).resolve()) if args.data else None, task.classes(),
                      counts.pop() if len(counts) == 1 else None,
                      args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
-                     args.n_ex, args.n_fgen, args.min_information, **learner_options(args),
+                     learner_settings(args),
                      device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
                      augment=args.augment, dynamic=args.dynamic, incremental=incremental)
-
-
-def learner_options(args) -> dict:
-    """The learner's generalization options from the command line (ftorch.recognition.learner.OPTIONS)."""
-    return {k: getattr(args, k) for k in OPTIONS}
 
 
 def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
@@ -350,8 +337,7 @@ def recognize_command(args, incremental: bool = False) -> int:
         raise InputError("--dynamic draws each cycle's training views from the copies of --augment N: give N >= 1")
     if args.seed + args.seeds - 1 > MAX_SEED:
         raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
-    DistinctiveFeatureLearner(args.n_ex, args.n_fgen, min_information=args.min_information,
-                              **learner_options(args))  # refuses bad parameters early
+    learner_settings(args)  # refuses bad parameters early
     start = time.perf_counter()
     out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
     with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
@@ -503,7 +489,7 @@ def robustness_command(args) -> int:
     device = resolve_device(args.device)
     kinds = _perturbations(args.perturb)
     if args.test_information is not None:
-        DistinctiveFeatureLearner(test_information=args.test_information)  # refuses a bad threshold early
+        LearnerSettings(test_information=args.test_information)  # refuses a bad threshold early
     run = Path(args.checkpoint)
     out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
     # results written inside the run folder belong to the run: the run is locked meanwhile, and they
@@ -611,6 +597,31 @@ def _task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: s
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _learner_options(p: argparse.ArgumentParser) -> None:
+    """One option per learner setting, as :class:`LearnerSettings` describes it (its defaults: the measured best)."""
+    for f in fields(LearnerSettings):
+        flag, meta, default = "--" + f.name.replace("_", "-"), f.metadata, f.default
+        if f.type == "bool":
+            p.add_argument(flag, action="store_true", help=f"{meta['help']} (default off)")
+        elif f.type == "int":
+            p.add_argument(flag, type=at_least(meta["at_least"], meta["what"], meta["at_most"]), default=default,
+                           metavar=meta["metavar"], help=f"{meta['help']} (default {default})")
+        elif f.name == "primitives":
+            p.add_argument(flag, type=primitives, default=",".join(default), metavar=meta["metavar"],
+                           help=f"{meta['help']} (default {','.join(default)})")
+        elif f.name == "evidence":
+            p.add_argument(flag, choices=[str(e) for e in Evidence], default=str(default),
+                           help=f"{meta['help']} (default {default})")
+        else:
+            p.add_argument(flag, type=number, default=default, metavar=meta["metavar"],
+                           help=f"{meta['help']} (default {default:g})")
+
+
+def learner_settings(args) -> LearnerSettings:
+    """The learner's settings from the command line; InputError for a value out of range."""
+    return LearnerSettings(**{k: getattr(args, k) for k in LearnerSettings.names()})
+
+
 def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     _task_options(p, ("plym", "coil", "folder"), default)
     p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
@@ -621,35 +632,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
     p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="image side in pixels: Plym renders at it (default 64); "
                    "COIL and class-folder images are area-averaged down to that shorter side on load (default: as stored)")
-    p.add_argument("--n-ex", type=at_least(1, "a number of images", 1000), default=5, help="example images per class, alg. 4.8 (default 5)")
-    p.add_argument("--n-fgen", type=at_least(1, "a number of candidates", 1000), default=10, help="candidates per generation method, alg. 4.10 (default 10)")
-    p.add_argument("--min-information", type=number, default=MIN_INFORMATION, metavar="BITS",
-                   help=f"stop a recognition once no unqueried feature has more mutual information with a class "
-                        f"(4.4.2; default {MIN_INFORMATION}; 0: only at I_max = 0)")
-    p.add_argument("--test-information", type=number, default=TEST_INFORMATION, metavar="BITS",
-                   help=f"the same threshold for the learner's answers on test views (default {TEST_INFORMATION:g}: "
-                        "every informative feature is asked)")
+    _learner_options(p)
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same splits")
-    p.add_argument("--search-rounds", type=at_least(1, "a number of calls", 100), default=1, metavar="N",
-                   help="calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate reaches t_KSD (default 1)")
-    p.add_argument("--redundancy", type=at_least(1, "a number of features", 100), default=REDUNDANCY, metavar="K",
-                   help=f"distinctive features each needed class distinction should have, 7.2.4 (default {REDUNDANCY}; "
-                        "1: alg. 5.2 as printed)")
-    p.add_argument("--evidence", choices=EVIDENCE, default="both",
-                   help="both: presence and absence enter the networks (4.4.1); positive: presence only (4.4.2)")
-    p.add_argument("--primitives", type=primitives, default=PRIMITIVES, metavar="LIST",
-                   help=f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
-                        f"(texture: the statistical texture of 7.2.1, the intensity distribution; default {PRIMITIVES})")
-    p.add_argument("--pseudocount", type=number, default=PSEUDOCOUNT, metavar="A",
-                   help=f"added to every CPT count (default {PSEUDOCOUNT:g}; 0: relative frequencies as the thesis)")
-    p.add_argument("--leak", type=number, default=0.0, metavar="L",
-                   help="detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing feature "
-                        "does not rule its class out (default 0)")
-    p.add_argument("--calibrate", action="store_true",
-                   help="calibrated counting: count each node's cut-point and CPT on the training views other than "
-                        "those its search selected it on, where enough remain (cross-fitting; default off)")
-    p.add_argument("--cut-position", type=number, default=0.5, metavar="W",
-                   help="a node's cut-point between the two values where its KSD is reached: 0.5 the midpoint (4.3.2, default)")
     p.add_argument("--augment", type=at_least(0, "a number of copies", 100), default=0, metavar="N",
                    help="also train on N perturbed copies of each training view: rotated and scaled, half of them "
                         "occluded, half on procedural clutter (training/data/augment.py; default 0)")
@@ -695,7 +679,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="the run's image folder, where it has moved (default: as recorded in the run)")
     p.add_argument("--perturb", default="all", help=f"all (default) or a comma-separated list of {', '.join(SETS)}")
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same images")
-    p.add_argument("--evidence", choices=("learned", *EVIDENCE), default="learned",
+    p.add_argument("--evidence", choices=("learned", *Evidence), default="learned",
                    help="recognize with the evidence mode the learner was trained with (default) or another")
     p.add_argument("--test-information", type=number, metavar="BITS",
                    help="stop each recognition at this many bits instead of the learner's own threshold")

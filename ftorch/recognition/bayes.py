@@ -1,4 +1,5 @@
-"""One Bayesian network per class (4.4.1), held as a pgmpy model of record, with fast exact inference.
+"""One Bayesian network per class (4.4.1), validated and inferred exactly by ftorch itself, checked against and
+exported through pgmpy.
 
 Every node is binary (0 = absent, 1 = present): the class node "class" and one node per feature.
 Arcs run from the class node to every feature and between features as the feature structure
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 from collections.abc import Hashable
 from types import MappingProxyType
 
@@ -484,13 +486,23 @@ class ClassNetwork:
         info = self.evaluate(self.state(evidence))[1]
         return {k: float(info[i]) for i, k in enumerate(self.features) if k not in evidence}
 
+    def node_names(self) -> dict:
+        """The exported name of every node: 'class', and per feature its position and kind
+        ('f0_texel', 'f1_geometric_edgel_edgel', ...), identifiers as BIF requires."""
+        def kind(key) -> str:
+            return re.sub(r"\W+", "_", key.describe() if hasattr(key, "describe") else str(key)).strip("_")
+        return {CLASS: CLASS, **{k: f"f{i}_{kind(k)}".rstrip("_") for i, k in enumerate(self.features)}}
+
     def to_pgmpy(self):
-        """The network as a pgmpy ``DiscreteBayesianNetwork`` (nodes 'class', 'f0', 'f1', ...)."""
+        """The network as a pgmpy ``DiscreteBayesianNetwork`` named after its class, nodes named by
+        :meth:`node_names`."""
         from pgmpy.factors.discrete import TabularCPD
         from pgmpy.models import DiscreteBayesianNetwork
 
-        name = {CLASS: CLASS, **{k: f"f{i}" for i, k in enumerate(self.features)}}
+        name = self.node_names()
         model = DiscreteBayesianNetwork()
+        label = re.sub(r"\W+", "_", str(self.label)).strip("_")
+        model.name = label if label[:1].isalpha() else f"class_{label}"
         model.add_node(CLASS)
         for key in self.features:
             model.add_node(name[key])

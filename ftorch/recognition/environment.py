@@ -25,14 +25,22 @@ class ImageSet:
     ``images`` are file paths, arrays or tensors of any sizes, one image each
     (:func:`ftorch.images.as_image`); ``labels`` give each image's true classes: a set (or list) of
     labels, or one label, any hashable value (``"cube"``, ``3``): a string is one label, never its
-    letters. ``names`` default to the file names (or ``image N``). ``records``: these images' records where they were computed before
+    letters. Without ``labels`` (images to recognize) ``labeled`` is False and learning refuses them. ``names`` default to the file names (or ``image N``). ``records``: these images' records where they were computed before
     (``space.records(images)``, e.g. once for the folds that share the images); they are used
     as they are, shared, not copied. ``examples(label, n)`` draws n random images containing
     ``label`` (alg. 4.8 step 2).
     """
 
-    def __init__(self, images: Sequence, labels: Sequence[Iterable[Hashable]], space: FeatureSpace | None = None,
-                 names: Sequence[str] | None = None, progress: bool = False, records: ImageRecords | None = None):
+    def __init__(self, images: Sequence, labels: Sequence[Iterable[Hashable]] | None = None,
+                 space: FeatureSpace | None = None, names: Sequence[str] | None = None, progress: bool = False,
+                 records: ImageRecords | None = None):
+        if isinstance(images, (str, Path)):
+            raise InputError(f"images {str(images)!r}: expected a sequence of images (files, arrays or tensors), "
+                             "not one path")
+        if isinstance(labels, (str, bytes)):
+            raise InputError(f"labels {labels!r}: expected one label (or set of labels) per image, not one string")
+        self.labeled = labels is not None
+        labels = [frozenset()] * len(images) if labels is None else labels
         if len(images) != len(labels):
             raise InputError(f"{len(images)} images but {len(labels)} label sets")
         if len(images) == 0:
@@ -51,6 +59,20 @@ class ImageSet:
         self.all_records = records
         self._single: dict[int, ImageRecords] = {}
         self._cache = ValueCache(len(self.labels), torch.empty(0, dtype=records.dtype).numpy().dtype)
+
+    def extended(self, other: "ImageSet") -> "ImageSet":
+        """These images followed by ``other``'s, in one set: positions here keep their meaning, the
+        values cached here are kept, and both sets' records are joined, not recomputed."""
+        if self.labeled != other.labeled:
+            raise InputError("cannot join a labelled image set and an unlabelled one")
+        joined = object.__new__(ImageSet)
+        joined.labeled, joined.space = self.labeled, self.space
+        joined.labels, joined.names, joined.images = (self.labels + other.labels, self.names + other.names,
+                                                      self.images + other.images)
+        joined.all_records = ImageRecords.cat([self.all_records, other.all_records.to(self.all_records.device)])
+        joined._single = {}
+        joined._cache = self._cache.extended(len(other))
+        return joined
 
     @staticmethod
     def _grey(item, name: str) -> torch.Tensor:

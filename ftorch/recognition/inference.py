@@ -14,22 +14,50 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
 from .bayes import ClassNetwork
 
-def outcome(recognized: Iterable[Hashable], true: Iterable[Hashable]) -> str:
+
+class Outcome(StrEnum):
+    """The categories of a recognition result (def. 4.5), in the thesis's table order."""
+
+    CORRECT = "correct"  # recognized = true
+    WRONG = "wrong"  # as many classes as true, some false
+    AMBIGUOUS = "ambiguous"  # all true classes and some false ones
+    CONFUSED = "confused"  # some false classes, not all true ones, a different number
+    IGNORANT = "ignorant"  # some true classes missing and no false one
+
+
+class Result(StrEnum):
+    """What one training presentation did (alg. 4.7, 5.1)."""
+
+    CORRECT = "correct"  # recognized correctly; nothing to learn
+    REESTIMATED = "reestimated"  # a mistake, fixed by re-discretizing and re-counting (alg. 4.7 step 3)
+    LEARNED = "learned"  # a mistake, fixed by a new feature (alg. 4.8)
+    FAILED = "failed"  # a mistake no candidate fixed
+    EXPERT = "expert"  # correct, and an expert feature was added (alg. 5.1)
+    EXPERT_FAILED = "expert-failed"  # correct, but no candidate reached t_KSD
+
+    @property
+    def mistake(self) -> bool:
+        """Whether the presentation's first recognition was wrong (a stage ends after a cycle without one)."""
+        return self in (Result.REESTIMATED, Result.LEARNED, Result.FAILED)
+
+
+def outcome(recognized: Iterable[Hashable], true: Iterable[Hashable]) -> Outcome:
     """Category of a recognition result (def. 4.5)."""
     recognized, true = set(recognized), set(true)
     hits, false = recognized & true, recognized - true
     if recognized == true:
-        return "correct"
+        return Outcome.CORRECT
     if not false:
-        return "ignorant"
+        return Outcome.IGNORANT
     if hits == true:
-        return "ambiguous"
-    return "wrong" if len(recognized) == len(true) else "confused"
+        return Outcome.AMBIGUOUS
+    return Outcome.WRONG if len(recognized) == len(true) else Outcome.CONFUSED
 
 
 def accuracy(recognized: Iterable[Hashable], true: Iterable[Hashable], n_classes: int) -> float:

@@ -23,7 +23,8 @@ Decisions the text leaves open (the parts' modules give theirs):
   cycle limit, not one image, bounds the work; ``search_rounds=1`` is one call per presentation.
   An expert feature is accepted when it reaches t_KSD and the image is still recognized correctly.
 
-Options for generalization beyond the thesis (each default is the thesis's behaviour):
+Options for generalization beyond the thesis, held with the rest in :class:`~ftorch.recognition.settings.LearnerSettings`
+(whose defaults are the measured best; :meth:`~ftorch.recognition.settings.LearnerSettings.thesis` gives the thesis's behaviour):
 - ``redundancy`` k (7.2.4): a distinction c-vs-d that an image needs is *carried* by k features:
   alg. 5.2 scores a pair by its support, the k-th largest KSD_{c,d}(f) over all features of c's
   network, and expert learning runs while the weakest support is 0 or below t_KSD. The true
@@ -64,35 +65,51 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from ..checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
-from ..errors import InputError
+from ..checkpoint import (
+    decode_array,
+    encode_array,
+    load_checkpoint,
+    save_checkpoint,
+    stored_position,
+)
+from ..errors import InputError, NotFittedError
 from ..space.features import Feature, FeatureTable, unpack_features
+from ..space.record import FeatureSpace
 from .bayes import ClassNetwork, compound_arcs
-from .candidates import METHODS, THESIS_PRIMITIVES, CandidateGenerator, in_use, pick, primitive_set
+from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
-from .inference import Recognition, outcome, recognize, residual_entropy
+from .inference import (
+    Outcome,
+    Recognition,
+    Result,
+    accuracy,
+    outcome,
+    recognize,
+    residual_entropy,
+)
 from .instances import InstanceList, are_stored_values
-
+from .settings import Evidence, LearnerSettings, bits, whole
+from .stages import MAX_CYCLES, Schedule, Stage
 
 KIND = "learner"
-EVIDENCE = ("both", "positive")  # 4.4.2: presence and absence entered, or presence only
-OPTIONS = ("search_rounds", "redundancy", "evidence", "pseudocount", "leak", "cut_position", "test_information",
-           "primitives", "calibrate")
 
 
 class Presentation(NamedTuple):
-    """What one training presentation did (alg. 4.7 / 5.1). ``result`` is 'correct',
-    'reestimated', 'learned', 'failed', 'expert' (an expert feature was added) or 'expert-failed'.
-    ``entropy``: residual entropy per class in bits; ``pair`` and ``ksd``: alg. 5.2's choice and its
-    KSD_{c,d} (eq. 5.1), None where no class was left uncertain."""
+    """What one training presentation did: its first recognition, its :class:`Result`, the residual
+    entropy per class in bits; ``pair`` and ``ksd``: alg. 5.2's choice and its KSD_{c,d} (eq. 5.1),
+    None where no class was left uncertain."""
 
     recognition: Recognition
-    result: str
+    result: Result
     entropy: dict
     pair: tuple | None = None
     ksd: float | None = None
+
+
+GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
+MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed stays a signed 64-bit integer
 
 
 def _cached(env: ImageSet | None, features: list, images: list) -> np.ndarray | None:
@@ -114,26 +131,6 @@ def _number(value) -> float:
     return float(value)
 
 
-GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
-MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed stays a signed 64-bit integer
-
-
-def _whole(name: str, value, minimum: int, maximum: int | None = None) -> int:
-    """An integer option from ``minimum`` (to ``maximum``); InputError for a float, a bool or a number out of range."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum or \
-            (maximum is not None and value > maximum):
-        bound = f"from {minimum} to {maximum}" if maximum is not None else f"of at least {minimum}"
-        raise InputError(f"{name} must be an integer {bound}, got {value!r}")
-    return int(value)
-
-
-def _bits(name: str, value) -> float:
-    """A stopping threshold of alg. 4.4 in bits: [0, 1); InputError otherwise."""
-    if not 0.0 <= value < 1.0:
-        raise InputError(f"{name} must lie in [0, 1) bits, got {value}")
-    return value
-
-
 def _count(value) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"count {value!r} is not an integer >= 0")
@@ -141,47 +138,50 @@ def _count(value) -> int:
 
 
 class DistinctiveFeatureLearner:
-    """Learns class networks of distinctive features from labelled images, one at a time.
+    """Learns class networks of distinctive features from labelled images, incrementally and only
+    from its mistakes; an estimator in the manner of scikit-learn.
 
-    ``learn(env, i)`` presents image i of an :class:`ImageSet` with its true classes;
-    ``min_information`` (bits) is the stopping threshold that 4.4.2 offers for alg. 4.4: recognition
-    stops once no unqueried feature has I(C, F) above it (0: stop only at I_max = 0, as printed)
-    in the recognitions of learning; ``recognize``/``recognize_many`` recognize images of any image
-    set with ``test_information`` as theirs; ``save``/``load``
-    write and read the whole state (networks, instance list, usage, random state) exactly.
+    ``fit(images, labels)`` runs training stages (alg. 5.3; alg. 5.4 with ``incremental``) from a
+    blank state; ``partial_fit`` presents images once each, keeping what was learned (the
+    incremental loop, alg. 4.7 / 5.1); ``predict`` answers each image's recognized classes (alg. 4.4,
+    def. 4.5: a set, empty where nothing is recognized), ``predict_proba`` the posterior of every
+    class (open world: a row need not sum to 1), ``score`` the mean accuracy of def. 4.6. Labels are
+    any hashable values, or a set of them per image. ``settings`` (:class:`LearnerSettings`, the
+    measured best by default; :meth:`thesis` for the dissertation's) may be changed by keyword,
+    ``DistinctiveFeatureLearner(redundancy=1)``. ``seed`` seeds every random choice; ``device``
+    where the feature space computes the images' records.
+
+    The lower-level face: ``learn(env, i)`` presents image i of an :class:`ImageSet`;
+    ``recognize``/``recognize_many`` recognize images of any image set; ``save``/``load`` write and
+    read the whole state (networks, instance list, usage, random state) exactly.
     """
 
-    def __init__(self, n_ex: int = 5, n_fgen: int = 10, seed: int = 0, min_information: float = 0.0,
-                 search_rounds: int = 1, redundancy: int = 1, evidence: str = "both", pseudocount: float = 0.0,
-                 cut_position: float = 0.5, test_information: float = 0.0, primitives=THESIS_PRIMITIVES,
-                 leak: float = 0.0, calibrate: bool = False):
-        for name, count in (("n_ex", n_ex), ("n_fgen", n_fgen), ("search_rounds", search_rounds), ("redundancy", redundancy)):
-            _whole(name, count, 1)
-        _whole("seed", seed, 0, MAX_SEED)
-        for name, bits in (("min_information", min_information), ("test_information", test_information)):
-            _bits(name, bits)
-        if not 0.0 <= pseudocount < float("inf"):
-            raise InputError(f"pseudocount must be a finite number >= 0, got {pseudocount}")
-        if not 0.0 <= leak < 0.5:
-            raise InputError(f"leak must lie in [0, 0.5), got {leak}")
-        if not 0.0 <= cut_position <= 1.0:
-            raise InputError(f"cut_position must lie in [0, 1], got {cut_position}")
-        if not isinstance(calibrate, (bool, np.bool_)):
-            raise InputError(f"calibrate must be True or False, got {calibrate!r}")
-        if evidence not in EVIDENCE:
-            raise InputError(f"evidence {evidence!r}: expected one of {', '.join(EVIDENCE)}")
-        self.n_ex, self.n_fgen = int(n_ex), int(n_fgen)
-        self.min_information, self.test_information = float(min_information), float(test_information)
-        self.search_rounds, self.redundancy, self.evidence = int(search_rounds), int(redundancy), evidence
-        self.pseudocount, self.leak, self.cut_position = float(pseudocount), float(leak), float(cut_position)
-        self.generator = torch.Generator().manual_seed(int(seed))  # every random choice; set in place on load
+    def __init__(self, settings: LearnerSettings | None = None, *, seed: int = 0, device: str | torch.device = "cpu",
+                 **options):
+        self.settings = (LearnerSettings() if settings is None else settings).replace(**options)
+        self.seed = whole("seed", seed, 0, MAX_SEED)
+        self.device = torch.device(device)
+        self.space = FeatureSpace().to(self.device)
+        self.generator = torch.Generator()  # every random choice; set in place on load
+        self._blank()
+
+    def _blank(self) -> None:
+        """The state before any presentation: no network, no instance, the generator at ``seed``."""
+        self.generator.manual_seed(self.seed)
         self.networks: dict[Hashable, ClassNetwork] = {}
-        self.counting = Counting(bool(calibrate))
-        self.candidates = CandidateGenerator(self.generator, primitives)
+        self.counting = Counting(self.settings.calibrate)
+        self.candidates = CandidateGenerator(self.generator, self.settings.primitives)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
         self.trainable = True  # False once loaded from a recognition-only state
         self.sides: tuple[int, int] | None = None  # the smallest and largest shorter side of the images learned from
+        self.images_: ImageSet | None = None  # the images fit and partial_fit learned from
+        self.stages_: list[Stage] = []  # fit's stages
+
+    @classmethod
+    def thesis(cls, *, seed: int = 0, device: str | torch.device = "cpu", **options) -> "DistinctiveFeatureLearner":
+        """A learner with the dissertation's settings (:meth:`LearnerSettings.thesis`), changed by ``options``."""
+        return cls(LearnerSettings.thesis(), seed=seed, device=device, **options)
 
     @property
     def instances(self) -> InstanceList:
@@ -192,43 +192,96 @@ class DistinctiveFeatureLearner:
         return self.counting.discriminates
 
     @property
-    def calibrate(self) -> bool:
-        """Whether counts leave out the images each node was selected on (module docstring)."""
-        return self.counting.calibrate
-
-    @calibrate.setter
-    def calibrate(self, value: bool) -> None:
-        self.counting.calibrate = bool(value)
-
-    @property
-    def primitives(self) -> tuple:
-        """Method 2's kinds of primitive (module docstring); set by name, as the constructor takes them."""
-        return self.candidates.primitives
-
-    @primitives.setter
-    def primitives(self, value) -> None:
-        self.candidates.primitives = primitive_set(value)
-
-    @property
     def sampled(self) -> int:
         """Features sampled from images so far (alg. 4.10 methods 2 and 3; figures 4.10 and 5.19)."""
         return self.candidates.sampled
 
-    def options(self) -> dict:
-        """The generalization options (module docstring), as keyword arguments of the constructor."""
-        return {k: getattr(self, k) for k in OPTIONS}
+    @property
+    def classes_(self) -> list:
+        """The classes learned, in network order (the columns of :meth:`predict_proba`)."""
+        self._check_fitted()
+        return list(self.networks)
 
     def set_params(self, **options) -> "DistinctiveFeatureLearner":
-        """Change generalization options, validated as the constructor validates them, and return
-        the learner; e.g. ``set_params(evidence="positive", test_information=0.1)`` answers with
-        another evidence mode and threshold (the robustness benchmark)."""
-        unknown = sorted(set(options) - set(OPTIONS))
-        if unknown:
-            raise InputError(f"unknown learner options {unknown}: expected some of {', '.join(OPTIONS)}")
-        probe = DistinctiveFeatureLearner(self.n_ex, self.n_fgen, 0, self.min_information, **{**self.options(), **options})
-        for k in OPTIONS:
-            setattr(self, k, getattr(probe, k))
+        """Change settings, validated as the constructor validates them, and return the learner; e.g.
+        ``set_params(evidence="positive", test_information=0.1)`` answers with another evidence mode
+        and threshold (the robustness benchmark)."""
+        self.settings = self.settings.replace(**options)
+        self.counting.calibrate = self.settings.calibrate
+        self.candidates.primitives = self.settings.primitives
         return self
+
+    def _check_fitted(self) -> None:
+        if not self.networks:
+            raise NotFittedError("this DistinctiveFeatureLearner has learned no class yet: call fit or partial_fit "
+                                 "(or learn), or load a saved learner, first")
+
+    # -- the estimator face ------------------------------------------------------------------
+    def _image_set(self, images, labels=None) -> ImageSet:
+        return images if isinstance(images, ImageSet) else ImageSet(images, labels, space=self.space)
+
+    def fit(self, images, labels=None, *, stages: int | None = None, max_cycles: int = MAX_CYCLES,
+            incremental: bool = False, classes: list | None = None) -> "DistinctiveFeatureLearner":
+        """Learn from a blank state: training stages (alg. 5.3) on ``images`` (files, arrays or
+        tensors, or an :class:`ImageSet`, then without ``labels``) with their ``labels``. ``stages``:
+        expert stages after stage 0 (0: chapter 4 learning only; None: until t_KSD = 1 or two stages
+        in a row miss their target); ``incremental``: add the classes one at a time in the order of
+        ``classes`` (default: sorted), alg. 5.4. The presentation order is drawn from ``seed``, as
+        every other random choice. Returns the learner; ``stages_`` holds the stages' reports."""
+        env = self._image_set(images, labels)
+        self._blank()
+        self.images_ = env
+        schedule = Schedule(self, env, torch.Generator().manual_seed(self.seed), stages, max_cycles, classes,
+                            incremental)
+        self.stages_ = schedule.run()
+        return self
+
+    def partial_fit(self, images, labels=None, *, t_ksd: float = 0.0) -> "DistinctiveFeatureLearner":
+        """Present ``images`` once each, in their order, keeping what was learned (alg. 4.7; alg. 5.1
+        with the KSD target ``t_ksd``). New images join the images learned from (their examples
+        serve later searches, alg. 4.8); an :class:`ImageSet` already learned from is presented again."""
+        if isinstance(images, ImageSet) and labels is not None:
+            raise InputError("partial_fit: an ImageSet carries its own labels; pass no labels with it")
+        if self.images_ is None and self.presentations:
+            raise InputError("partial_fit: this learner learned from images it no longer holds (it was loaded, or "
+                             "taught through learn); go on with learn(env, i) on the image set it learned from")
+        if self.images_ is None or isinstance(images, ImageSet) and images is self.images_:
+            added = self._image_set(images, labels)
+            start = 0
+        else:
+            new = self._image_set(images, labels)
+            start = len(self.images_)
+            added = self.images_.extended(new)
+        self.images_ = added
+        for i in range(start, len(added)):
+            self.learn(added, i, t_ksd)
+        return self
+
+    def predict(self, images) -> list[frozenset]:
+        """The classes recognized in each image (alg. 4.4, posterior > 0.5): a set per image, empty
+        where no class is recognized (an ignorant result, def. 4.5)."""
+        return [frozenset(r.recognized) for r in self._answers(images)]
+
+    def predict_proba(self, images) -> np.ndarray:
+        """Each image's posterior per class (images x :attr:`classes_`), after alg. 4.4. The classes
+        are not exclusive (an image may show several or none), so a row need not sum to 1."""
+        labels = self.classes_
+        return np.array([[r.posteriors[c] for c in labels] for r in self._answers(images)], dtype=np.float64)
+
+    def score(self, images, labels=None) -> float:
+        """Mean accuracy (def. 4.6) over labelled images, against every class learned."""
+        self._check_fitted()
+        env = self._image_set(images, labels)
+        if not env.labeled:
+            raise InputError("score needs labels: the true classes of each image")
+        answers = self._answers(env)
+        n = len(set(self.networks) | set(env.classes()))
+        return float(np.mean([accuracy(r.recognized, t, n) for r, t in zip(answers, env.labels)]))
+
+    def _answers(self, images) -> list[Recognition]:
+        self._check_fitted()
+        env = self._image_set(images)
+        return self.recognize_many(env, range(len(env)))
 
     # -- recognition (alg. 4.4) --------------------------------------------------------------
     def recognize(self, env: ImageSet, image: int) -> Recognition:
@@ -240,24 +293,25 @@ class DistinctiveFeatureLearner:
         """Recognize several images: every feature of every network is measured on all of them in one
         batch. ``information``: the stopping threshold in bits (default ``test_information``; the
         learning recognitions' ``min_information`` judges a training image as learning does)."""
-        bits = self.test_information if information is None else _bits("information", information)
-        return self._recognize_many(env, images, bits)
+        self._check_fitted()
+        threshold = self.settings.test_information if information is None else bits("information", information)
+        return self._recognize_many(env, images, threshold)
 
-    def _recognize_many(self, env: ImageSet, images, bits: float) -> list[Recognition]:
+    def _recognize_many(self, env: ImageSet, images, threshold: float) -> list[Recognition]:
         images = [env.index(i) for i in images]
         features = in_use(self.networks)
         table = env.values(features, images) if features else np.zeros((0, len(images)))
         out = []
         for k in range(len(images)):
             column = dict(zip(features, table[:, k].tolist()))
-            out.append(recognize(self.networks, column.__getitem__, max(bits, 1e-12),
-                                 positive_only=self.evidence == "positive"))
+            out.append(recognize(self.networks, column.__getitem__, max(threshold, 1e-12),
+                                 positive_only=self.settings.evidence is Evidence.POSITIVE))
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior."""
-        self.counting.reestimate(self.networks, self.cut_position, self.pseudocount, self.leak)
+        self.counting.reestimate(self.networks, self.settings.cut_position, self.settings.pseudocount, self.settings.leak)
 
     # -- learning (alg. 4.7) -----------------------------------------------------------------
     def learn(self, env: ImageSet, image: int, t_ksd: float = 0.0) -> Presentation:
@@ -267,6 +321,8 @@ class DistinctiveFeatureLearner:
         """
         if not 0.0 <= t_ksd <= 1.0:
             raise InputError(f"t_ksd must lie in [0, 1], got {t_ksd}")
+        if not env.labeled:
+            raise InputError("learning needs labels: this image set was made without the images' true classes")
         if not self.trainable:
             raise InputError("this learner was loaded from a recognition-only file (learner.json) and cannot learn: "
                              "load a state saved with training=True, such as a fold's checkpoint.json, to go on learning")
@@ -281,45 +337,45 @@ class DistinctiveFeatureLearner:
         self.counting.instances.add(image, true)
         first = self._training_recognition(env, image)
         entropy = residual_entropy(first)
-        if outcome(first.recognized, true) == "correct":
+        if outcome(first.recognized, true) is Outcome.CORRECT:
             return self._expert(env, image, first, entropy, t_ksd)
         self.reestimate()
         again = self._training_recognition(env, image)
-        if outcome(again.recognized, true) == "correct":
-            return Presentation(first, "reestimated", entropy)
+        if outcome(again.recognized, true) is Outcome.CORRECT:
+            return Presentation(first, Result.REESTIMATED, entropy)
         chosen = self.choose_classes(again, true)
         if chosen is None:
-            return Presentation(first, "failed", entropy)
+            return Presentation(first, Result.FAILED, entropy)
         char, disc, char_is_true = chosen
         learned = self._search(env, image, char, disc, char_is_true, t_ksd,
                                lambda after: (char in after.recognized) == char_is_true)
-        return Presentation(first, "learned" if learned else "failed", entropy)
+        return Presentation(first, Result.LEARNED if learned else Result.FAILED, entropy)
 
     def _expert(self, env: ImageSet, image: int, rec: Recognition, entropy: dict, t_ksd: float) -> Presentation:
         """Alg. 5.1 steps 2-4 on a correctly recognized image."""
         true = env.labels[image]
         chosen = self.choose_pair(rec, true, entropy)
         if chosen is None:
-            return Presentation(rec, "correct", entropy)
+            return Presentation(rec, Result.CORRECT, entropy)
         c, d, weakest = chosen
-        if weakest >= t_ksd and (self.redundancy == 1 or weakest > 0):  # k > 1: carried means power > 0 too
-            return Presentation(rec, "correct", entropy, (c, d), weakest)
+        if weakest >= t_ksd and (self.settings.redundancy == 1 or weakest > 0):  # k > 1: carried means power > 0 too
+            return Presentation(rec, Result.CORRECT, entropy, (c, d), weakest)
         learned = self._search(env, image, c, frozenset({d}), c in true, t_ksd,
-                               lambda after: outcome(after.recognized, true) == "correct")
-        return Presentation(rec, "expert" if learned else "expert-failed", entropy, (c, d), weakest)
+                               lambda after: outcome(after.recognized, true) is Outcome.CORRECT)
+        return Presentation(rec, Result.EXPERT if learned else Result.EXPERT_FAILED, entropy, (c, d), weakest)
 
     def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
         """Alg. 5.2 (:func:`ftorch.recognition.expertise.choose_pair` with this learner's ``redundancy``): (c, d,
         KSD_{c,d}) for the least-well-discriminated pair, or None; with k > 1 the k strongest carriers
         of every pair scored count as used."""
-        best, used = choose_pair(self.networks, self.counting, rec, true, entropy, self.redundancy)
+        best, used = choose_pair(self.networks, self.counting, rec, true, entropy, self.settings.redundancy)
         for carriers in used:
             self._mark_usage(carriers)
         return best
 
     def _learning_recognition(self, env: ImageSet, image: int) -> Recognition:
         """A recognition inside learning: it stops at ``min_information``."""
-        return self._recognize_many(env, [image], self.min_information)[0]
+        return self._recognize_many(env, [image], self.settings.min_information)[0]
 
     def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
         rec = self._learning_recognition(env, image)
@@ -340,7 +396,7 @@ class DistinctiveFeatureLearner:
         self.counting.forget(unused, self.networks)
         if unused:
             for net in self.networks.values():
-                self.counting.estimate(net, self.pseudocount, self.leak)
+                self.counting.estimate(net, self.settings.pseudocount, self.settings.leak)
         return unused
 
     def choose_classes(self, rec: Recognition, true: frozenset) -> tuple[Hashable, frozenset, bool] | None:
@@ -374,23 +430,23 @@ class DistinctiveFeatureLearner:
         """Alg. 4.8 from step 2: add one feature characteristic of ``char`` against ``disc`` with
         distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``.
         Alg. 4.10 (the five methods) is called up to ``search_rounds`` times (alg. 5.1's "until")."""
-        sample = image if char_is_true else pick(env.examples(char, self.n_ex, self.generator), self.generator)
-        examples = env.examples(char, self.n_ex, self.generator)
+        sample = image if char_is_true else pick(env.examples(char, self.settings.n_ex, self.generator), self.generator)
+        examples = env.examples(char, self.settings.n_ex, self.generator)
         for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
-            examples += env.examples(d, self.n_ex, self.generator)
+            examples += env.examples(d, self.settings.n_ex, self.generator)
         images = list(dict.fromkeys([image, sample, *examples]))
         net = self.networks[char]
         failed: list = []
-        for method in [m for _ in range(self.search_rounds) for m in METHODS]:
+        for method in [m for _ in range(self.settings.search_rounds) for m in METHODS]:
             tried = set(failed)
-            candidates = [f for f in self.candidates(method, self.n_fgen, self.networks, env, sample, char, disc, failed)
+            candidates = [f for f in self.candidates(method, self.settings.n_fgen, self.networks, env, sample, char, disc, failed)
                           if f not in net and f not in tried]
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
                 continue
             self.counting.measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
-            cuts, powers = self.counting.discretize(char, candidates, self.cut_position, disc)
+            cuts, powers = self.counting.discretize(char, candidates, self.settings.cut_position, disc)
             for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
                 if power <= 0 or power < t_ksd:
                     failed.append(candidate)
@@ -399,7 +455,7 @@ class DistinctiveFeatureLearner:
                 self.counting.selected[(char, candidate)] = frozenset(images)
                 parents, children = compound_arcs(candidate, net.features)
                 net.add_feature(candidate, parents, children, threshold=cut)
-                self.counting.estimate(net, self.pseudocount, self.leak)
+                self.counting.estimate(net, self.settings.pseudocount, self.settings.leak)
                 after = self._learning_recognition(env, image)
                 self.counting.record(image, after)
                 if succeeded(after):
@@ -408,7 +464,7 @@ class DistinctiveFeatureLearner:
                 net.remove_feature(candidate)
                 del self.counting.discriminates[(char, candidate)]
                 del self.counting.selected[(char, candidate)]
-                self.counting.estimate(net, self.pseudocount, self.leak)
+                self.counting.estimate(net, self.settings.pseudocount, self.settings.leak)
                 failed.append(candidate)
         return False
 
@@ -434,9 +490,8 @@ class DistinctiveFeatureLearner:
         """
         own = table is None
         table = FeatureTable() if own else table
-        state = {"n_ex": self.n_ex, "n_fgen": self.n_fgen, "min_information": self.min_information,
-                 **self.options(), "primitives": [str(p) for p in self.primitives],
-                 "presentations": self.presentations, "sampled": self.sampled,
+        state = {**self.settings.to_dict(), "primitives": [str(p) for p in self.settings.primitives],
+                 "seed": self.seed, "presentations": self.presentations, "sampled": self.sampled,
                  "sides": None if self.sides is None else list(self.sides), "networks": self._networks_state(table)}
         if training:
             instances = self.instances
@@ -463,16 +518,19 @@ class DistinctiveFeatureLearner:
         recognizes but refuses to learn."""
         features = unpack_features(state["features"]) if features is None else features
         at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
-        self.n_ex, self.n_fgen = _count(state["n_ex"]), _count(state["n_fgen"])
-        self.min_information = _number(state["min_information"])
-        # a state written before test_information existed answered with min_information
-        options = {**DistinctiveFeatureLearner().options(), "test_information": self.min_information,
-                   **{k: state[k] for k in OPTIONS if k in state}}
-        for k in ("search_rounds", "redundancy"):
-            options[k] = _count(options[k])
-        for k in ("pseudocount", "leak", "cut_position", "test_information"):
-            options[k] = _number(options[k])
-        self.set_params(**options)
+        # a state written before an option existed ran with the thesis's value (test_information: with
+        # min_information's, which its answers used)
+        stored = {k: state[k] for k in ("n_ex", "n_fgen", "min_information")}  # in every state
+        stored.update({k: state[k] for k in LearnerSettings.names() if k in state})
+        stored.setdefault("test_information", stored["min_information"])
+        for k in ("n_ex", "n_fgen", "search_rounds", "redundancy"):
+            if k in stored:
+                stored[k] = _count(stored[k])
+        for k in ("min_information", "pseudocount", "leak", "cut_position", "test_information"):
+            if k in stored:
+                stored[k] = _number(stored[k])
+        self.seed = whole("seed", state.get("seed", 0), 0, MAX_SEED)  # states written before it was recorded: 0
+        self.set_params(**{**LearnerSettings.thesis().to_dict(), **stored})
         self.presentations, self.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])
         sides = state.get("sides")  # files written before sides were recorded have none
         if sides is not None and (not isinstance(sides, list) or len(sides) != 2 or _count(sides[0]) > _count(sides[1])):
@@ -491,7 +549,7 @@ class DistinctiveFeatureLearner:
         if not self.networks and "instances" not in state:
             raise ValueError("a recognition file without a class network")  # a fresh learner's full state has none
         self.trainable = "instances" in state
-        self.counting, self.usage = Counting(self.calibrate), {}
+        self.counting, self.usage = Counting(self.settings.calibrate), {}
         self.generator.set_state(torch.Generator().get_state())  # in place: the parts hold this generator
         if not self.trainable:
             return
@@ -518,14 +576,18 @@ class DistinctiveFeatureLearner:
 
     def save(self, path, training: bool = False) -> None:
         """Write the learner to ``path`` (JSON, atomically): what recognition needs, or with
-        ``training=True`` the complete state (see :meth:`state_dict`)."""
+        ``training=True`` the complete state (see :meth:`state_dict`); NotFittedError for a learner
+        that has learned nothing and would write no network to recognize with."""
+        if not training:
+            self._check_fitted()
         save_checkpoint(path, KIND, {"learner": self.state_dict(training)})
 
     @classmethod
-    def load(cls, path) -> "DistinctiveFeatureLearner":
-        """Read a learner written by :meth:`save`; one clear InputError for a damaged or foreign file."""
+    def load(cls, path, device: str | torch.device = "cpu") -> "DistinctiveFeatureLearner":
+        """Read a learner written by :meth:`save` (``device``: where it computes records); one clear
+        InputError for a damaged or foreign file."""
         data = load_checkpoint(path, KIND)
-        learner = cls()
+        learner = cls(device=device)
         try:
             learner.load_state_dict(data["learner"])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:

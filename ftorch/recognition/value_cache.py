@@ -59,6 +59,13 @@ class ValueCache:
             block = table[np.ix_(rows, images)]
         return block.astype(np.float64, copy=False)
 
+    def extended(self, images: int) -> "ValueCache":
+        """A copy for these images followed by ``images`` more: their values not yet measured."""
+        out = ValueCache(self.images + images, self.dtype)
+        out._row = dict(self._row)
+        out._table.add_rows(np.concatenate([self._table.array, np.full((len(self._row), images), np.nan, self.dtype)], 1))
+        return out
+
     def stored(self, features: Sequence[Feature], images: Sequence) -> np.ndarray:
         """The values held for ``features`` on ``images`` (F, n), in storage precision, NaN where none
         is (a feature not asked for yet, an image that is not one of the indices); computes nothing."""

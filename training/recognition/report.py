@@ -12,7 +12,7 @@ from scipy import stats
 from ftorch.checkpoint import write_text
 from training.cli.devices import described
 
-from .protocol import OUTCOMES
+from ftorch.recognition.inference import Outcome
 
 THESIS_TABLE_4_2 = {  # average rows of table 4.2 (stage 0), for comparison
     "coil": {"accuracy": .60, "correct": .50, "wrong": .08, "ambiguous": .09, "confused": 0.0, "ignorant": .33,
@@ -157,7 +157,7 @@ def _p(value: float) -> str:
 
 
 def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
-    cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in OUTCOMES),
+    cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in Outcome),
              f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
              f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}",
              f"{features['sampled'] / presentations:.1f}" if presentations else ""]
@@ -196,7 +196,7 @@ def stage_table(fold: dict) -> list[str]:
     for s in fold["stages"]:
         t = f"{s['t_ksd']:.3f}"
         cells = [str(s["stage"]), str(s["classes"]), f"**{t}**" if s["target_met"] else t, f"{s['ksd_min']:.3f}",
-                 str(s["cycles"]), _p(s["test"]["accuracy"]), *(_p(s["test"][k]) for k in OUTCOMES),
+                 str(s["cycles"]), _p(s["test"]["accuracy"]), *(_p(s["test"][k]) for k in Outcome),
                  str(s["features"]["bn"]), str(s["features"]["different"]), f"{s['features']['queried']:.1f}",
                  str(s["features"]["sampled"])]
         rows.append("| " + " | ".join(cells) + " |")

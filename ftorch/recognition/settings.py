@@ -1,0 +1,136 @@
+"""The distinctive-feature learner's settings: one validated object, read by the learner, the
+runner's command line, its run configuration and the saved state alike.
+
+Two presets. :class:`LearnerSettings` () holds the measured best (chosen on seeds 5-9 and on
+development data, never on reported views; docs/results.md): a learning threshold of 0.1 bits,
+pseudocount 1 and redundancy 3. :meth:`LearnerSettings.thesis` holds the dissertation's own
+settings: recognition until I_max = 0, relative-frequency CPTs and alg. 5.2 as printed. Each
+field's ``help`` is what the command line prints for it (``--n-ex`` for ``n_ex``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+from enum import StrEnum
+
+import numpy as np
+
+from ..errors import InputError
+from .candidates import THESIS_PRIMITIVES, Primitive, primitive_set
+
+
+class Evidence(StrEnum):
+    """What recognition enters into the networks (4.4.1, 4.4.2)."""
+
+    BOTH = "both"  # presence and absence
+    POSITIVE = "positive"  # presence only: an absent feature may be occluded
+
+
+def _option(default, help: str, metavar: str | None = None, at_least: int | None = None, at_most: int | None = None,
+            what: str | None = None):
+    """A settings field; ``help``, ``metavar``, ``what`` (an integer's noun) and the bounds ``at_least``
+    to ``at_most`` describe it on the command line (the lower bound is checked everywhere)."""
+    return field(default=default, metadata={"help": help, "metavar": metavar, "at_least": at_least,
+                                            "at_most": at_most, "what": what})
+
+
+@dataclass(frozen=True)
+class LearnerSettings:
+    """The options of :class:`~ftorch.recognition.learner.DistinctiveFeatureLearner` (its module
+    docstring says what each does and why); validated on construction (InputError)."""
+
+    n_ex: int = _option(5, "example images per class, alg. 4.8", at_least=1, at_most=1000,
+                               what="a number of images")
+    n_fgen: int = _option(10, "candidates per generation method, alg. 4.10", at_least=1, at_most=1000,
+                                 what="a number of candidates")
+    min_information: float = _option(
+        0.1, "stop a recognition inside learning once no unqueried feature has more mutual information "
+        "with a class (4.4.2; 0: only at I_max = 0)", "BITS")
+    search_rounds: int = _option(1, "calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate "
+                                 "reaches t_KSD", "N", at_least=1, at_most=100, what="a number of calls")
+    redundancy: int = _option(3, "distinctive features each needed class distinction should have, 7.2.4 "
+                              "(1: alg. 5.2 as printed)", "K", at_least=1, at_most=100, what="a number of features")
+    evidence: Evidence = _option(Evidence.BOTH, "both: presence and absence enter the networks (4.4.1); "
+                                 "positive: presence only (4.4.2)")
+    pseudocount: float = _option(1.0, "added to every CPT count (0: relative frequencies as the thesis)", "A")
+    leak: float = _option(0.0, "detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing "
+                          "feature does not rule its class out", "L")
+    cut_position: float = _option(0.5, "a node's cut-point between the two values where its KSD is reached: "
+                                  "0.5 the midpoint (4.3.2)", "W")
+    test_information: float = _option(0.0, "the stopping threshold of the learner's answers (0: every "
+                                       "informative feature is asked)", "BITS")
+    primitives: tuple[Primitive, ...] = _option(
+        THESIS_PRIMITIVES, f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
+        "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
+    calibrate: bool = _option(False, "calibrated counting: count each node's cut-point and CPT on the training "
+                              "views other than those its search selected it on, where enough remain (cross-fitting)")
+
+    def __post_init__(self):
+        for f in fields(self):
+            if f.metadata["at_least"] is not None:
+                object.__setattr__(self, f.name, whole(f.name, getattr(self, f.name), f.metadata["at_least"]))
+        for name in ("min_information", "test_information"):
+            object.__setattr__(self, name, bits(name, getattr(self, name)))
+        for name, low, high, closed in (("pseudocount", 0.0, math.inf, False), ("leak", 0.0, 0.5, False),
+                                        ("cut_position", 0.0, 1.0, True)):
+            value = _real(name, getattr(self, name))
+            if not (low <= value <= high if closed else low <= value < high):
+                bound = f"[{low:g}, {high:g}]" if closed else "a finite number >= 0" if high == math.inf else \
+                    f"[{low:g}, {high:g})"
+                raise InputError(f"{name} must lie in {bound}, got {value}")
+            object.__setattr__(self, name, value)
+        if not isinstance(self.calibrate, (bool, np.bool_)):
+            raise InputError(f"calibrate must be True or False, got {self.calibrate!r}")
+        object.__setattr__(self, "calibrate", bool(self.calibrate))
+        try:
+            object.__setattr__(self, "evidence", Evidence(self.evidence))
+        except ValueError:
+            raise InputError(f"evidence {self.evidence!r}: expected one of {', '.join(Evidence)}") from None
+        object.__setattr__(self, "primitives", primitive_set(self.primitives))
+
+    @classmethod
+    def thesis(cls, **changes) -> "LearnerSettings":
+        """The dissertation's settings (alg. 4.4 until I_max = 0, relative frequencies, alg. 5.2 as
+        printed), with ``changes``."""
+        return replace(cls(min_information=0.0, pseudocount=0.0, redundancy=1), **changes)
+
+    def replace(self, **changes) -> "LearnerSettings":
+        """These settings with ``changes``; InputError naming an unknown option."""
+        unknown = sorted(set(changes) - set(self.names()))
+        if unknown:
+            raise InputError(f"unknown learner options {unknown}: expected some of {', '.join(self.names())}")
+        return replace(self, **changes)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the primitives as one comma-separated string, the evidence as its name."""
+        out = asdict(self)
+        out["primitives"] = ",".join(self.primitives)
+        out["evidence"] = str(self.evidence)
+        return out
+
+
+def whole(name: str, value, minimum: int, maximum: int | None = None) -> int:
+    """An integer option from ``minimum`` (to ``maximum``); InputError for a float, a bool or a number out of range."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum or \
+            (maximum is not None and value > maximum):
+        bound = f"from {minimum} to {maximum}" if maximum is not None else f"of at least {minimum}"
+        raise InputError(f"{name} must be an integer {bound}, got {value!r}")
+    return int(value)
+
+
+def _real(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    return float(value)
+
+
+def bits(name: str, value) -> float:
+    """A stopping threshold of alg. 4.4 in bits: [0, 1); InputError otherwise."""
+    value = _real(name, value)
+    if not 0.0 <= value < 1.0:
+        raise InputError(f"{name} must lie in [0, 1) bits, got {value}")
+    return value
