@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
+from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork, compound_arcs
 from ftorch.space.draw import draw_features, feature_legend
-from ftorch.errors import InputError
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Conjunction, Disjunction, Feature, FeatureTable, LocalFeature, Part, _CachedHash, unpack_features
 from ftorch.space.generate import random_texel

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 import torch
 
+from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import Primitive
-from ftorch.errors import InputError
 from ftorch.recognition.counting import Counting
+from ftorch.recognition.inference import Recognition, recognize, residual_entropy
 from ftorch.recognition.ksd import distinctive_at, ksd
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
-from ftorch.recognition.inference import Recognition, outcome, recognize, residual_entropy
 
 from .test_learner import shapes  # noqa: F401  (fixture)
 from .test_recognition import two_class_networks

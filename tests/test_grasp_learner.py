@@ -11,11 +11,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
+from ftorch.grasp.learner import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp.vonmises import fit_mixture
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Texel
 from ftorch.space.generate import random_edgel_pair
-from ftorch.grasp.learner import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
-from ftorch.grasp.vonmises import fit_mixture
 from training import run
 from training.grasping.experiment import GraspFold, simulate_pool
 from training.grasping.haptics import HapticController
@@ -279,7 +279,8 @@ def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds()
     square, triangle = np.array([[0.92, 0.5]]), np.array([[0.66, 0.5]])
     s = learner["pooled"].sets[2]
     assert s.models[0] is not None and s.models[0].alpha < 0.6  # present on both kinds
-    assert 0.2 < s.pooled_mu0(s.present(triangle, np.zeros_like(triangle)))[0] < 0.4  # pooled: a triangle looks like a good two-finger grasp
+    # pooled: a triangle looks like a good two-finger grasp
+    assert 0.2 < s.pooled_mu0(s.present(triangle, np.zeros_like(triangle)))[0] < 0.4
     assert s.quality[0, 0] == 1.0 and 0.75 < s.quality[1, 0] < 0.85  # the split between the kinds
     assert s.quality_mu0(triangle)[0][0] > 0.4 and s.quality_mu0(square)[0][0] < 0.1 and s.quality_mu0(square)[1][0] == 0
     for kind, values, fingers in (("square", square, 2), ("triangle", triangle, 3)):

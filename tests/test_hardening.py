@@ -16,8 +16,8 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace, InputError, as_image_batch
-from ftorch.recognition.bayes import ClassNetwork
 from ftorch.checkpoint import decode_array, encode_array, write_atomic
+from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training import run

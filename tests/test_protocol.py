@@ -1,28 +1,28 @@
 """The recognition protocol of 4.5: learning a fold, exact resume, checkpoint refusal, reports."""
 import json
 import os
-from dataclasses import replace
 import re
 import subprocess
 import sys
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 import torch
-from scipy import stats
 from pgmpy.readwrite import BIFReader
+from scipy import stats
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from ftorch import FeatureSpace
-from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
+from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
-from training import run
-from training.plots import figure_rgb, fold_curves_figure
-from training.data.datasets import Task, plym_task
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Progress, next_target
+from training import run
+from training.data.datasets import Task, plym_task
+from training.plots import figure_rgb, fold_curves_figure
 from training.recognition.protocol import Fold, FoldState, RunConfig
 from training.recognition.report import growth, growth_over_seeds, seed_study, write_markdown
 

@@ -40,8 +40,8 @@ def test_every_python_example_runs(tmp_path, monkeypatch, capsys):
 
 
 def _command_lines() -> list[str]:
-    lines = [l.split("#")[0].strip() for b in blocks("bash") for l in b.splitlines()]
-    return [l for l in lines if l.startswith("python -m training.run ")]
+    lines = [line.split("#")[0].strip() for b in blocks("bash") for line in b.splitlines()]
+    return [line for line in lines if line.startswith("python -m training.run ")]
 
 
 @pytest.mark.parametrize("line", _command_lines())
@@ -59,9 +59,9 @@ def _anchors(page: str) -> set[str]:
 def test_the_readme_is_a_front_page_whose_links_resolve():
     assert len(README) < 12_000  # the decisions and the full results live in docs/
     pattern = r"\]\(([\w/.-]+\.(?:md|png))?(?:#([\w-]+))?\)"
-    links = [("", *l) for l in re.findall(pattern, README)]
-    links += [(f"docs/{name}.md", *l) for name, page in zip(("usage", "results", "decisions", "benchmark", "layout"), DOCS[1:])
-              for l in re.findall(pattern, page)]
+    links = [("", *link) for link in re.findall(pattern, README)]
+    links += [(f"docs/{name}.md", *link) for name, page in zip(("usage", "results", "decisions", "benchmark", "layout"), DOCS[1:])
+              for link in re.findall(pattern, page)]
     assert len(links) >= 12
     for source, target, anchor in links:
         page = ROOT / (source or "README.md")

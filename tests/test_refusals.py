@@ -128,7 +128,8 @@ def test_a_compressed_array_larger_than_its_place_is_refused_before_inflating(sm
     fold.checkpoint.write_text(json.dumps(data))
     tracemalloc.start()
     try:
-        with pytest.raises(InputError, match=rf"declares shape \(1024, 38400\) where the file's structure needs \({features}, {len(fold.train)}\)"):
+        needs = rf"declares shape \(1024, 38400\) where the file's structure needs \({features}, {len(fold.train)}\)"
+        with pytest.raises(InputError, match=needs):
             fold.run(max_cycles=1, resume=True)
         assert tracemalloc.get_traced_memory()[1] < 100 << 20
     finally:

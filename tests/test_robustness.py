@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from ftorch.errors import InputError
-from training.recognition.peers import PixelNN, SiftMatcher, score
 from training.data.perturb import GREY, KINDS, mask, perturb, save_examples
+from training.recognition.peers import PixelNN, SiftMatcher, score
 
 from .conftest import random_image
 
@@ -249,9 +249,9 @@ def check_node_rows(run_folder, result: dict, out) -> None:
     """Every node's firing rates, counted here one view at a time from its value and its cut-point,
     equal the benchmark's rows; the per-type table pools them; the report shows both."""
     from ftorch import FeatureSpace
+    from ftorch.images import load_image
     from ftorch.recognition.environment import ImageSet
     from ftorch.recognition.learner import DistinctiveFeatureLearner
-    from ftorch.images import load_image
     from training.data.datasets import plym_task
 
     learner = DistinctiveFeatureLearner.load(run_folder / "fold1" / "learner.json")

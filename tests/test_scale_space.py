@@ -13,6 +13,7 @@ from ftorch.space.steering import steer, steer_block
 
 from .conftest import random_image
 
+
 def test_responses_equal_scipy_everywhere_in_float64():
     image = random_image(40, 52, seed=1)
     out = ScaleSpace()(image)

@@ -122,9 +122,9 @@ def runs(tmp_path_factory):
 
 
 def test_learned_networks_pack_to_their_counted_bytes_and_recognize_the_same(runs):
-    from training.data.datasets import load_task
     from ftorch.recognition.environment import ImageSet
     from ftorch.space.record import FeatureSpace
+    from training.data.datasets import load_task
     learner = DistinctiveFeatureLearner.load(runs / "k1" / "fold1" / "learner.json")
     assert sum(len(n.features) for n in learner.networks.values()) > 0
     back = check_round_trip(learner.networks)
@@ -238,7 +238,8 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     report = json.loads((runs / "k3" / "report.json").read_text())
     assert ours["redundancy 3"]["accuracy"]["clean"] == pytest.approx(report["folds"][0]["stages"][-1]["test"]["accuracy"])
     settings = {(p["method"], p["setting"]) for p in result["points"]}
-    assert {("sift", "1 keypoint"), ("sift", "all keypoints"), ("sift_across", "1 keypoint"), ("pixel_nn", "4x4 pixels"), ("pixel_nn", "16x16 pixels"),
+    assert {("sift", "1 keypoint"), ("sift", "all keypoints"), ("sift_across", "1 keypoint"), ("pixel_nn", "4x4 pixels"),
+            ("pixel_nn", "16x16 pixels"),
             ("pixel_nn", "32x32 pixels")} <= settings
     pixels = {p["setting"]: p for p in result["points"] if p["method"] == "pixel_nn"}
     assert len(pixels) == 4  # 4, 8, 16 and as stored (32 x 32)

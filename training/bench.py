@@ -27,23 +27,24 @@ import argparse
 import json
 import sys
 import time
+
 import cv2
 import numpy as np
 import torch
 
 from ftorch import FeatureSpace, ScaleSpace
 from ftorch.checkpoint import write_text
+from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork, information
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Conjunction, Disjunction
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.kernels import derivative_kernels
 from ftorch.space.reference import reference_values, scipy_basis
-from training.data.builtin import builtin_scene
-from ftorch.errors import InputError
 from training.cli.arguments import Parser
 from training.cli.devices import resolve_device
 from training.cli.outputs import writable_file
+from training.data.builtin import builtin_scene
 
 TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
 

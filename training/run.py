@@ -1,4 +1,4 @@
-"""Command line: ``python -m training.run [COMMAND ...]``.
+"""The ftorch command line: ftorch [COMMAND ...], or python -m training.run [COMMAND ...].
 
 Commands:
   recognize --task coil|folder|plym ...   the recognition protocol of 4.5 (two-fold cross
@@ -19,7 +19,7 @@ Commands:
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
                                Without images it uses the built-in scene.
-With no command at all it runs ``recognize`` on the built-in Plym-like task into runs/plym.
+With no command at all it runs recognize on the built-in Plym-like task into runs/plym.
 """
 from __future__ import annotations
 
@@ -44,26 +44,40 @@ import torch
 
 from ftorch import FeatureSpace, load_image
 from ftorch.checkpoint import write_text
-from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
-from ftorch.recognition.environment import ImageSet
 from ftorch.errors import InputError
 from ftorch.recognition.candidates import primitive_set
+from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import Evidence, LearnerSettings
+from ftorch.space.draw import draw_features, draw_salient, feature_legend, grid, save_rgb, titled
 from ftorch.space.record import ImageRecords, require_memory
-from training.data.augment import augment, overview as augmented_overview
 from training.cli.arguments import MAX_SEED, Parser, at_least, number, seed
-from training.data.builtin import builtin_scene
-from training.data.datasets import Task, load_task, reduced
 from training.cli.devices import described, machine, resolve_device
 from training.cli.outputs import Ledger, RunFolder, locked, writable_folder
 from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
-from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
-from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure, tradeoff_figure
+from training.data.augment import augment
+from training.data.augment import overview as augmented_overview
+from training.data.builtin import builtin_scene
+from training.data.datasets import Task, load_task, reduced
 from training.grasping.command import add_parser as add_grasp_parser
-from training.recognition.robustness import SETS, average as average_robustness, feature_tables, fold_robustness, split_peers, table as robustness_table
-from training.recognition.tradeoff import table as tradeoff_table, tradeoff
-from training.recognition.report import COLUMNS, ambiguity_table, build_report, confusion_table, growth_over_seeds, seed_study, shown, write_json, write_markdown
+from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure, tradeoff_figure
+from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
+from training.recognition.report import (
+    COLUMNS,
+    ambiguity_table,
+    build_report,
+    confusion_table,
+    growth_over_seeds,
+    seed_study,
+    shown,
+    write_json,
+    write_markdown,
+)
+from training.recognition.robustness import SETS, feature_tables, fold_robustness, split_peers
+from training.recognition.robustness import average as average_robustness
+from training.recognition.robustness import table as robustness_table
+from training.recognition.tradeoff import table as tradeoff_table
+from training.recognition.tradeoff import tradeoff
 
 
 def salient(args) -> int:
@@ -391,7 +405,8 @@ def _recognize(args, incremental: bool, device: torch.device, task: Task, folder
                           folds, seeds)
     if args.peers:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
-    pictures = {"curves.png": curves_figure} | ({"growth.png": growth_figure} if report.get("growth", {}).get("exponent") is not None else {})
+    grew = report.get("growth", {}).get("exponent") is not None
+    pictures = {"curves.png": curves_figure} | ({"growth.png": growth_figure} if grew else {})
     ledger.files(*(out / name for name in ("report.json", "report.md", *pictures)))
     write_json(out / "report.json", report)
     for name, figure in pictures.items():
@@ -403,7 +418,8 @@ def _recognize(args, incremental: bool, device: torch.device, task: Task, folder
           f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
     if seeds:
         print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
-              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, one-tailed paired t-test p = {shown(seeds['p'], '.2g')}")
+              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, "
+              f"one-tailed paired t-test p = {shown(seeds['p'], '.2g')}")
         if seeds.get("growth", {}).get("mean") is not None:
             g = seeds["growth"]
             print(f"{args.seeds} seeds, fold 1: features sampled ~ classes^b, b = {g['mean']:.2f} "
@@ -467,7 +483,8 @@ def evaluate_command(args) -> int:
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.checkpoint} on {args.data}", "",
-             f"accuracy {result['test']['accuracy']:.2f}; " + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
+             f"accuracy {result['test']['accuracy']:.2f}; "
+             + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
              "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result["confusion"], classes), "",
              "## Ambiguous recognitions (table 4.4 form)", "", *ambiguity_table(result["confusion"], classes), ""]
     write_text(out / "evaluate.md", "\n".join(lines))
@@ -628,9 +645,11 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--stages", default="auto", help="expert stages after stage 0 (0: chapter 4 learning only), "
                    "or auto: until t_KSD = 1 or two stages in a row miss their target (default auto)")
     p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1, help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs "
-                   "expert accuracy with a paired one-tailed t-test (figure 5.5; default 1)")
-    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="image side in pixels: Plym renders at it (default 64); "
+    p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1,
+                   help="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs expert accuracy with a paired one-tailed "
+                   "t-test (figure 5.5; default 1)")
+    p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192),
+                   help="image side in pixels: Plym renders at it (default 64); "
                    "COIL and class-folder images are area-averaged down to that shorter side on load (default: as stored)")
     _learner_options(p)
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same splits")
@@ -641,7 +660,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help="with --augment N: each cycle presents one version of every training view, drawn from the view "
                         "and its N copies, and a stage ends once the original views are learned (default off: every "
                         "copy is a training view of its own)")
-    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20, help="give up a stage after this many cycles (default 20, alg. 5.3)")
+    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20,
+                   help="give up a stage after this many cycles (default 20, alg. 5.3)")
     p.add_argument("--out", help="run folder (default runs/TASK, runs/TASK-inc for incremental)")
     p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
     p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT")
@@ -650,7 +670,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    f"since the last write (default {CHECKPOINT_EVERY}; 0: after every cycle)")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (without it, or --resume, "
                    "a folder that holds a run is refused)")
-    p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1, help="run the folds and seeds as N local processes at once "
+    p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1,
+                   help="run the folds and seeds as N local processes at once "
                    "(default 1: one after another); the report is the same")
     p.add_argument("--ray", metavar="ADDRESS", help="run the folds and seeds as tasks on a Ray cluster (ray.init "
                    "address, e.g. auto or ray://HEAD:10001; local: a local instance with --workers CPUs); "
@@ -658,7 +679,8 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    top = Parser(prog="python -m training.run", description=__doc__.split("\n\n")[0])
+    top = Parser(prog="ftorch" if Path(sys.argv[0]).name == "ftorch" else "python -m training.run",
+                 description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command")
     p = commands.add_parser("recognize", help="recognition protocol of 4.5 with training stages (alg. 5.3)")
     _training_options(p, "plym")

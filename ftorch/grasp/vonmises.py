@@ -149,7 +149,7 @@ def _fit_batch(theta: Tensor, mask: Tensor, ks: Tensor, max_kappa: float, max_st
     n = weight.sum(1)
     previous = torch.full_like(n, -math.inf)
     done = torch.zeros_like(n, dtype=torch.bool)
-    kappa = None
+    mu = kappa = log_weight = None  # the fit so far: none before the first M step
     for _ in range(max_steps):
         resp = resp * weight[:, :, None]
         mass = resp.sum(1)

@@ -25,7 +25,8 @@ class ImageSet:
     ``images`` are file paths, arrays or tensors of any sizes, one image each
     (:func:`ftorch.images.as_image`); ``labels`` give each image's true classes: a set (or list) of
     labels, or one label, any hashable value (``"cube"``, ``3``): a string is one label, never its
-    letters. Without ``labels`` (images to recognize) ``labeled`` is False and learning refuses them. ``names`` default to the file names (or ``image N``). ``records``: these images' records where they were computed before
+    letters. Without ``labels`` (images to recognize) ``labeled`` is False and learning refuses them.
+    ``names`` default to the file names (or ``image N``). ``records``: these images' records where they were computed before
     (``space.records(images)``, e.g. once for the folds that share the images); they are used
     as they are, shared, not copied. ``examples(label, n)`` draws n random images containing
     ``label`` (alg. 4.8 step 2).
@@ -47,7 +48,7 @@ class ImageSet:
             raise InputError("image set: no images")
         if records is not None and len(records) != len(images):
             raise InputError(f"{len(images)} images but {len(records)} records")
-        self.labels = [_label_set(l, i) for i, l in enumerate(labels)]
+        self.labels = [_label_set(label, i) for i, label in enumerate(labels)]
         self.names = list(names) if names is not None else [
             Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
         sources = [str(x) if isinstance(x, (str, Path)) else name for x, name in zip(images, self.names)]

@@ -503,7 +503,7 @@ class DistinctiveFeatureLearner:
                              for (c, f), images in self.counting.selected.items()],
                 "usage": [[table.index(f), n] for f, n in self.usage.items()],
                 "instances": {"images": [_label(i) for i in instances.images],
-                              "labels": [sorted(map(_label, l), key=str) for l in instances.labels],
+                              "labels": [sorted(map(_label, labels), key=str) for labels in instances.labels],
                               "features": [table.index(f) for f in instances.features],
                               "values": encode_array(instances.values_table(), _cached(env, instances.features, instances.images))},
             })

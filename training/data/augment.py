@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import torch
 
-from ftorch.space.draw import grid, panel, titled
 from ftorch.recognition.environment import ImageSet
+from ftorch.space.draw import grid, panel, titled
 
 from .perturb import occlude, paste, rotate
 

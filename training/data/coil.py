@@ -22,8 +22,8 @@ import numpy as np
 from ftorch.checkpoint import write_atomic
 from ftorch.errors import InputError
 from training.cli.arguments import Parser, at_least
-from training.data.datasets import COIL_NAME
 from training.cli.outputs import writable_folder
+from training.data.datasets import COIL_NAME
 
 OBJECTS, VIEWS, SIDE = 20, 72, 128
 

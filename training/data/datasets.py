@@ -171,7 +171,8 @@ def folder_task(root) -> Task:
     """``root/<class>/<image>``: every class folder holds that class's views, in file-name order."""
     root = _folder(root)
     images, labels, names, positions = [], [], [], []
-    for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):  # .git etc. are no class; is_dir follows links
+    # .git etc. are no class; is_dir follows links
+    for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
         files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
         for j, path in enumerate(files):
             images.append(path)

@@ -10,19 +10,19 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.space.draw import draw_features, grid, save_rgb, titled
 from ftorch.errors import InputError
 from ftorch.grasp.learner import FINGER_CHOICES, MU0_CAP, GraspLearner
+from ftorch.space.draw import draw_features, grid, save_rgb, titled
 from training.cli.arguments import MAX_SEED, at_least, number, seed
-from training.plots import figure_rgb
 from training.cli.devices import machine, resolve_device
 from training.cli.outputs import RunFolder
 from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
+from training.plots import figure_rgb
 from training.recognition.report import write_json
 
 from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
-from .haptics import HapticController
 from .figures import error_figure, grasp_figure, reduction_figure
+from .haptics import HapticController
 from .report import UNPREDICTED_DEG, grasp_columns, results, seed_study, write_markdown
 
 
@@ -238,9 +238,12 @@ def add_parser(commands) -> None:
     p.add_argument("--experiment", choices=EXPERIMENTS, default="clean",
                    help="clean (6.13a), noisy (6.13b), cue (6.14) or mixed (6.17; default clean)")
     p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
-    p.add_argument("--pool", type=at_least(1, "a number of grasps", 100000), default=80, help="simulated grasps per category (object kind and fingers; default 80)")
-    p.add_argument("--best", type=at_least(1, "a number of grasps", 100000), default=20, help="training grasps per category and fold (default 20)")
-    p.add_argument("--epochs", type=at_least(1, "a number of passes", 1000), default=10, help="passes over the training grasps (default 10)")
+    p.add_argument("--pool", type=at_least(1, "a number of grasps", 100000), default=80,
+                   help="simulated grasps per category (object kind and fingers; default 80)")
+    p.add_argument("--best", type=at_least(1, "a number of grasps", 100000), default=20,
+                   help="training grasps per category and fold (default 20)")
+    p.add_argument("--epochs", type=at_least(1, "a number of passes", 1000), default=10,
+                   help="passes over the training grasps (default 10)")
     p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
     p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="quality",
                    help="alg. 6.2 step 2b: quality (default): per set, the mean mu_0 on the image's side of the best "

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 
 from ftorch.checkpoint import write_text
-from training.cli.devices import described
 from ftorch.grasp.learner import MU0_CAP
+from training.cli.devices import described
 
 from .experiment import POOR_MU0
 

@@ -10,9 +10,8 @@ import numpy as np
 from scipy import stats
 
 from ftorch.checkpoint import write_text
-from training.cli.devices import described
-
 from ftorch.recognition.inference import Outcome
+from training.cli.devices import described
 
 THESIS_TABLE_4_2 = {  # average rows of table 4.2 (stage 0), for comparison
     "coil": {"accuracy": .60, "correct": .50, "wrong": .08, "ambiguous": .09, "confused": 0.0, "ignorant": .33,
@@ -335,8 +334,10 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
             g = s["growth"]
             lines += [f"Growth of the features sampled with the classes (figure 5.19), fold {g['fold']}: classes^b with "
                       f"b = {shown(g['mean'])} on average over the seeds (95% interval {shown(g['interval'][0])} to "
-                      f"{shown(g['interval'][1])}); per seed: " + ", ".join(f"{k} {shown(b)}" for k, b in zip(g["seeds"], g["exponents"])), ""]
+                      f"{shown(g['interval'][1])}); per seed: "
+                      + ", ".join(f"{k} {shown(b)}" for k, b in zip(g["seeds"], g["exponents"])), ""]
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
-                  "(figure 5.1 form; growth.png: figure 5.19 for incremental runs).", ""] + [f"![{Path(p).stem}]({p})" for p in figures] + [""]
+                  "(figure 5.1 form; growth.png: figure 5.19 for incremental runs).", ""]
+        lines += [f"![{Path(p).stem}]({p})" for p in figures] + [""]
     write_text(path, "\n".join(lines))

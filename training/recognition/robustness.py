@@ -14,17 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ftorch.space.draw import grid, panel, save_rgb, titled
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack
+from ftorch.space.draw import grid, panel, save_rgb, titled
 from ftorch.space.features import Geometric
 from ftorch.space.record import FeatureSpace
 
 from ..cli.outputs import Ledger
 from ..data.datasets import Task
-from .peers import PixelNN, SiftMatcher, score
 from ..data.perturb import KINDS, perturb, save_examples
+from .peers import PixelNN, SiftMatcher, score
 from .protocol import test_block
 
 SETS = ("clean", *KINDS)
