@@ -108,3 +108,31 @@ def test_kernels_are_buffers_that_follow_the_module():
     names = dict(space.named_buffers())
     assert "kernels_0" in names and names["kernels_0"].shape == (3, 7)
     assert names["kernels_0"].dtype == torch.float64
+
+
+def test_the_feature_space_works_under_autograd_and_its_state_is_its_settings():
+    from ftorch import FeatureSpace
+    from ftorch.space.evaluate import feature_values
+    from ftorch.space.features import Conjunction, Disjunction
+    from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel, random_texture
+
+    tiny = torch.rand(1, 1, 12, 12, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: ScaleSpace()(t).responses, (tiny,))  # a linear map: exact gradients
+    space = FeatureSpace()
+    images = torch.rand(2, 1, 32, 32, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    plain = space(images)
+    pixels = images.clone().requires_grad_()
+    graph = space(pixels)
+    # the same responses (to rounding: matrix products under autograd may block differently)
+    assert torch.allclose(graph.responses.detach(), plain.responses, rtol=0, atol=1e-14)
+    g = torch.Generator().manual_seed(0)
+    t, p = random_texel(plain, 0, g), random_edgel_pair(plain, 0, g)
+    features = [t, p, expand_geometric(p, plain, 0, g), random_texture(plain, 0, g), Conjunction(t, p), Disjunction(t, p)]
+    values = feature_values(features, graph).values
+    assert torch.allclose(values.detach(), feature_values(features, plain).values, rtol=0, atol=1e-12)
+    (grad,) = torch.autograd.grad(values.sum(), pixels)
+    assert grad.abs().sum() > 0 and torch.isfinite(grad).all()
+    state = FeatureSpace(truncate=4.0, rel_threshold=0.05).state_dict()
+    assert state["_extra_state"] == {"truncate": 4.0, "rel_threshold": 0.05}
+    space.load_state_dict(state)
+    assert space.scale_space.truncate == 4.0 and space.salient.rel_threshold == 0.05

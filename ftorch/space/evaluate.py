@@ -166,7 +166,6 @@ def _texture_fields(features: list[Texture], records: ImageRecords, max_elements
     return tuple(torch.cat(parts) for parts in zip(*results))
 
 
-@torch.no_grad()
 def feature_values(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
     """Values (F, N) of ``features`` in every image of ``records`` and where each is strongest.
 
@@ -176,7 +175,6 @@ def feature_values(features: Sequence[Feature], records: ImageRecords, max_eleme
     return FeatureValues(*_evaluate(features, records, max_elements, located=True))
 
 
-@torch.no_grad()
 def values_only(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> Tensor:
     """``feature_values(features, records).values`` (F, N), the same numbers, without finding
     where each is reached: what the learners measure."""

@@ -274,6 +274,18 @@ class FeatureSpace(nn.Module):
         self.salient = SalientPoints(rel_threshold)
         self.texture = TextureGrid(truncate)
 
+    def get_extra_state(self) -> dict:
+        """The settings the kernels and thresholds are made from: what ``state_dict`` holds (the
+        kernels themselves are derived buffers, not state)."""
+        return {"truncate": self.scale_space.truncate, "rel_threshold": self.salient.rel_threshold}
+
+    def set_extra_state(self, state: dict) -> None:
+        """Rebuild the parts from settings written by :meth:`get_extra_state`, on this module's device."""
+        device = next(iter(self.scale_space.buffers())).device
+        self.scale_space = ScaleSpace(state["truncate"]).to(device)
+        self.salient = SalientPoints(state["rel_threshold"])
+        self.texture = TextureGrid(state["truncate"])  # plans are built per device when used
+
     def forward(self, images) -> ImageRecords:
         images = as_image_batch(images)
         space = self.scale_space(images)

@@ -131,6 +131,9 @@ class ScaleSpace(nn.Module):
         plan = self._band_matrices(height, width, levels, x.device, x.dtype)
         out = torch.empty(batch, levels, 5, height, width, device=x.device, dtype=x.dtype)
         rows = x.permute(1, 0, 2).reshape(height * batch, width)
+        # out= writes save a temporary per tile but autograd refuses them: with a graph to record, the
+        # same sums are written by assignment
+        graph = torch.is_grad_enabled() and x.requires_grad
         for k, (horizontal, tiles) in enumerate(plan):
             h = torch.matmul(rows, horizontal).view(3, height, batch * width)
             for a, b, c0, c1, block in tiles:
@@ -140,6 +143,11 @@ class ScaleSpace(nn.Module):
                 level[:, 0] = gx
                 level[:, 1] = gy
                 level[:, 2] = gxx
+                if graph:
+                    iso = gxx4 + gyy
+                    level[:, 3] = iso + gxy
+                    level[:, 4] = iso - gxy
+                    continue
                 iso = torch.add(gxx4, gyy, out=level[:, 3])
                 torch.sub(iso, gxy, out=level[:, 4])
                 iso.add_(gxy)
