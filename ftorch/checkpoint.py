@@ -213,8 +213,8 @@ def save_checkpoint(path, kind: str, payload: dict) -> Path:
     return write_atomic(path, text.encode("utf-8"))
 
 
-def load_checkpoint(path, kind: str) -> dict:
-    """Read a checkpoint of ``kind``; InputError naming ``path`` for anything else."""
+def load_checkpoint(path, kind: str | tuple[str, ...]) -> dict:
+    """Read a checkpoint of ``kind`` (or of one of several kinds); InputError naming ``path`` for anything else."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such checkpoint file")
@@ -226,8 +226,10 @@ def load_checkpoint(path, kind: str) -> dict:
         raise InputError(f"{path}: not a readable checkpoint (JSON nested too deeply)") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"{path}: not an ftorch checkpoint")
-    if data.get("kind") != kind:
-        raise InputError(f"{path}: an ftorch checkpoint of kind {data.get('kind')!r}, expected {kind!r}")
+    kinds = (kind,) if isinstance(kind, str) else kind
+    if data.get("kind") not in kinds:
+        raise InputError(f"{path}: an ftorch checkpoint of kind {data.get('kind')!r}, expected "
+                         f"{' or '.join(map(repr, kinds))}")
     if data.get("version") not in READS:
         raise InputError(f"{path}: checkpoint version {data.get('version')!r}, this ftorch reads versions "
                          f"{READS[0]} to {READS[-1]}")

@@ -115,7 +115,7 @@ def test_every_damaged_field_of_a_learner_file_is_refused(saved, damage, tmp_pat
     path.write_text(json.dumps(data))
     with pytest.raises(InputError, match="damaged learner checkpoint"):
         DistinctiveFeatureLearner.load(path)
-    assert run.main(["evaluate", "--checkpoint", str(path), "--data", str(tmp_path), "--out", str(tmp_path / "e")]) == 2
+    assert run.main(["evaluate", "--learner", str(path), "--data", str(tmp_path), "--out", str(tmp_path / "e")]) == 2
     assert "damaged learner checkpoint" in one_line(capsys)
 
 
@@ -147,8 +147,8 @@ def test_a_cycle_is_refused():
 
 # -- 4. outputs are checked first, runs never mixed, writes atomic and by the umask --------------
 @pytest.mark.parametrize("argv", [
-    ["salient"], ["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], ["recognize"], ["grasp"],
-    ["robustness", "--checkpoint", "/nonexistent"]])
+    ["salient"], ["evaluate", "--learner", "/nonexistent.json", "--data", "."], ["recognize"], ["grasp"],
+    ["robustness", "--run", "/nonexistent"]])
 def test_an_output_that_is_a_file_is_refused_before_any_work(argv, tmp_path, capsys):
     target = tmp_path / "taken"
     target.write_text("a file")

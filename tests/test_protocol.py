@@ -217,11 +217,18 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
         cv2.imwrite(str(tmp_path / "data" / label / f"{name}.png"), (image.numpy() * 255).round().astype(np.uint8))
     common = ["--task", "folder", "--data", str(tmp_path / "data"), "--device", "cpu", "--quiet"]
     assert run.main(["recognize", *common, "--folds", "1", "--out", str(tmp_path / "run")]) == 0
-    assert run.main(["evaluate", "--checkpoint", str(tmp_path / "run/fold1/learner.json"), *common,
+    assert run.main(["evaluate", "--learner", str(tmp_path / "run/fold1/learner.json"), *common,
                      "--out", str(tmp_path / "eval")]) == 0
     result = json.loads((tmp_path / "eval" / "evaluate.json").read_text())
     assert len(result["images"]) == 60 and result["test"]["accuracy"] > 0.5
     assert "| class |" in (tmp_path / "eval" / "evaluate.md").read_text()
+    # --learner takes the fold's checkpoint.json as well: the same networks, the same answers
+    assert run.main(["evaluate", "--learner", str(tmp_path / "run/fold1/checkpoint.json"), *common,
+                     "--out", str(tmp_path / "again")]) == 0
+    again = json.loads((tmp_path / "again" / "evaluate.json").read_text())
+    assert {k: v for k, v in again.items() if k != "checkpoint"} == {k: v for k, v in result.items() if k != "checkpoint"}
+    assert run.main(["evaluate", "--learner", str(tmp_path / "run"), *common, "--out", str(tmp_path / "e3")]) == 2
+    assert run.main(["robustness", "--run", str(tmp_path / "run/fold1/checkpoint.json")]) == 2
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -229,7 +236,7 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
     (["recognize", "--n-fgen", "0"], "--n-fgen: 0: expected a number of candidates (an integer from 1 to 1000)"),
     (["recognize", "--size", "8"], "--size: 8: expected an image side in pixels (an integer from 9 to 8192)"),
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
-    (["evaluate", "--checkpoint", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
+    (["evaluate", "--learner", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
 ])
 def test_bad_runs_get_one_clear_line(argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # outputs are checked, hence made, before anything else

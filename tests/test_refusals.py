@@ -150,7 +150,7 @@ def test_a_learner_trained_small_evaluates_at_its_size_or_refuses(tmp_path, caps
     learner = tmp_path / "run" / "fold1" / "learner.json"
     assert json.loads(learner.read_text())["learner"]["sides"] == [32, 32]
     big = _plym_folder(tmp_path / "big", 128)
-    common = ["evaluate", "--checkpoint", str(learner), "--task", "folder", "--data", str(big), "--quiet", "--device", "cpu"]
+    common = ["evaluate", "--learner", str(learner), "--task", "folder", "--data", str(big), "--quiet", "--device", "cpu"]
     capsys.readouterr()
     assert run.main([*common, "--out", str(tmp_path / "e1")]) == 0
     assert "note: images area-averaged to the learned shorter side of 32 pixels (--size 32)" in capsys.readouterr().err
@@ -212,7 +212,7 @@ def test_a_flat_image_trains_and_evaluates(tmp_path):
     out = tmp_path / "o"
     assert run.main(["recognize", "--task", "folder", "--data", str(data), "--folds", "2", "--stages", "1", "--quiet",
                      "--device", "cpu", "--out", str(out)]) == 0
-    assert run.main(["evaluate", "--checkpoint", str(out / "fold2" / "learner.json"), "--task", "folder", "--data", str(data),
+    assert run.main(["evaluate", "--learner", str(out / "fold2" / "learner.json"), "--task", "folder", "--data", str(data),
                      "--quiet", "--device", "cpu", "--out", str(tmp_path / "e")]) == 0
     images = {r["image"]: r for r in json.loads((tmp_path / "e" / "evaluate.json").read_text())["images"]}
     assert "con6/99.png" in images
@@ -224,7 +224,7 @@ def test_a_flat_image_trains_and_evaluates(tmp_path):
 def test_an_integer_of_5000_digits_in_a_learner_file_is_one_line(tmp_path, capsys):
     path = tmp_path / "learner.json"
     path.write_text('{"format": "ftorch", "kind": "learner", "version": 4, "learner": {"n_ex": ' + "9" * 5000 + "}}")
-    assert exit_code(["evaluate", "--checkpoint", str(path), "--task", "folder", "--data", str(tmp_path),
+    assert exit_code(["evaluate", "--learner", str(path), "--task", "folder", "--data", str(tmp_path),
                       "--out", str(tmp_path / "e")]) == 2
     assert "not a readable checkpoint" in one_line(capsys)
 
@@ -238,7 +238,7 @@ def test_a_learner_with_integer_labels_evaluates_folders_named_by_them(tmp_path)
     images = {str(k): [(shape(k, rng.uniform(0, 2 * np.pi), rng) * 255).round().astype(np.uint8) for _ in range(3)]
               for k in range(3)}
     data = _folder(tmp_path / "d", images)
-    assert run.main(["evaluate", "--checkpoint", str(tmp_path / "learner.json"), "--task", "folder", "--data", str(data),
+    assert run.main(["evaluate", "--learner", str(tmp_path / "learner.json"), "--task", "folder", "--data", str(data),
                      "--quiet", "--device", "cpu", "--out", str(tmp_path / "e")]) == 0
     result = json.loads((tmp_path / "e" / "evaluate.json").read_text())
     assert result["classes"] == ["0", "1", "2"] and result["test"]["accuracy"] > 0.5

@@ -209,7 +209,7 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
                      "--peers", "--quiet", "--device", "cpu", "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert set(report["peers"]["average"]) == {"pixel_nn", "sift"} and "Peers on the same splits" in (out / "report.md").read_text()
-    args = ["robustness", "--checkpoint", str(out), "--perturb", "clean,occlude,pair", "--peers", "--quiet", "--device", "cpu"]
+    args = ["robustness", "--run", str(out), "--perturb", "clean,occlude,pair", "--peers", "--quiet", "--device", "cpu"]
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 0
     result = json.loads((tmp_path / "a" / "robustness.json").read_text())
     ours = result["folds"][0]["ours"]
@@ -231,15 +231,15 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     assert again["average"] == result["average"]  # same seed, same report
     assert result["machine"] == report["machine"]  # run on the machine that trained its learners
     assert f"{result['machine']['cpu_kernels']} kernels" in (tmp_path / "a" / "robustness.md").read_text()
-    assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "clean", "--quiet", "--device", "cpu",
+    assert run.main(["robustness", "--run", str(out), "--perturb", "clean", "--quiet", "--device", "cpu",
                      "--test-information", "0.9", "--out", str(tmp_path / "c")]) == 0
     short = json.loads((tmp_path / "c" / "robustness.json").read_text())
     assert short["test_information"] == 0.9 and result["test_information"] is None  # None: the learner's own
     assert short["folds"][0]["ours"]["clean"]["queried"] < ours["clean"]["queried"]
     capsys.readouterr()
-    assert run.main(["robustness", "--checkpoint", str(out), "--perturb", "blur"]) == 2
-    assert run.main(["robustness", "--checkpoint", str(tmp_path / "nothing")]) == 2
-    assert run.main(["robustness", "--checkpoint", str(out), "--test-information", "1.5"]) == 2
+    assert run.main(["robustness", "--run", str(out), "--perturb", "blur"]) == 2
+    assert run.main(["robustness", "--run", str(tmp_path / "nothing")]) == 2
+    assert run.main(["robustness", "--run", str(out), "--test-information", "1.5"]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 3 and "--perturb 'blur'" in errors[0] and "not a run folder" in errors[1]
     assert "test_information must lie in [0, 1)" in errors[2]

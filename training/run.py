@@ -10,8 +10,8 @@ Commands:
   grasp --experiment clean|noisy|cue|mixed [--online]   the grasp pre-shaping experiments
                                of chapter 6 on the built-in grasp simulator: report.json,
                                report.md with histograms (figures 6.13, 6.14, 6.17), TensorBoard.
-  evaluate --checkpoint PATH --data DIR   recognize another image set with a saved learner.
-  robustness --checkpoint RUN [--peers]   a recognize run's learners (and pixel 1-NN, SIFT
+  evaluate --learner PATH --data DIR     recognize another image set with a saved learner.
+  robustness --run RUN [--peers]         a recognize run's learners (and pixel 1-NN, SIFT
                                matching) on rotated, cluttered, occluded and paired test views.
   tradeoff --runs RUN...       accuracy against bytes stored per class: the runs' learners
                                packed as binary, SIFT matching with the n strongest keypoints
@@ -61,7 +61,7 @@ from training.data.builtin import builtin_scene
 from training.data.datasets import Task, load_task, reduced
 from training.grasping.command import add_parser as add_grasp_parser
 from training.plots import curves_figure, feature_types_figure, figure_rgb, fold_curves_figure, growth_figure, tradeoff_figure
-from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, test_block
+from training.recognition.protocol import Fold, RunConfig, confusion, feature_block, load_learner, test_block
 from training.recognition.report import (
     COLUMNS,
     ambiguity_table,
@@ -439,7 +439,7 @@ def at_learned_size(task: Task, learner: DistinctiveFeatureLearner, args) -> Tas
     (a factor of sqrt 2) outside the learned sides is refused. Learners saved before sides were
     recorded are taken as they are."""
     if learner.sides is None:
-        print(f"note: {args.checkpoint} does not record the image size it learned from; the images are "
+        print(f"note: {args.learner} does not record the image size it learned from; the images are "
               "recognized as stored (--size reduces them)", file=sys.stderr)
         return task
     low, high = learner.sides
@@ -453,7 +453,7 @@ def at_learned_size(task: Task, learner: DistinctiveFeatureLearner, args) -> Tas
     off = [i for i, shape in enumerate(shapes) if not low / SIDE_TOLERANCE <= min(shape) <= high * SIDE_TOLERANCE]
     if off:
         learned = f"{low}" if low == high else f"{low} to {high}"
-        raise InputError(f"--checkpoint {args.checkpoint} learned from images whose shorter side is {learned} pixels; "
+        raise InputError(f"--learner {args.learner} learned from images whose shorter side is {learned} pixels; "
                          f"{len(off)} of these are not within a scale step of that (e.g. {task.names[off[0]]}, "
                          f"{shapes[off[0]][0]}x{shapes[off[0]][1]}): give images of the learned size "
                          f"({'--size ' + str(low) + ' reduces larger ones' if args.size is None else 'another --size'})")
@@ -463,10 +463,10 @@ def at_learned_size(task: Task, learner: DistinctiveFeatureLearner, args) -> Tas
 def evaluate_command(args) -> int:
     device = resolve_device(args.device)
     out = writable_folder(args.out)
-    learner = DistinctiveFeatureLearner.load(args.checkpoint)
+    learner = load_learner(args.learner)
     networks = {str(c): net for c, net in learner.networks.items()}  # classes by name, as folders and COIL name them
     if len(networks) < len(learner.networks):
-        raise InputError(f"--checkpoint {args.checkpoint}: two classes have the same name as text "
+        raise InputError(f"--learner {args.learner}: two classes have the same name as text "
                          f"({', '.join(sorted(map(repr, learner.networks), key=str))}), so images cannot name them apart")
     task = at_learned_size(load_task(args.task, args.data, args.classes, args.views, args.size, first_view=args.first_view),
                            learner, args)
@@ -476,13 +476,13 @@ def evaluate_command(args) -> int:
     classes = sorted(set(networks) | set(task.labels), key=str)
     env = _image_set(task, list(range(len(task.images))), FeatureSpace().to(device), not args.quiet)
     recognitions = [replace(r, recognized={str(c) for c in r.recognized}) for r in learner.recognize_many(env, range(len(env)))]
-    result = {"checkpoint": str(args.checkpoint), "data": str(args.data), "classes": classes, "size": args.size,
+    result = {"checkpoint": str(args.learner), "data": str(args.data), "classes": classes, "size": args.size,
               "test": test_block(recognitions, env.labels, classes), "features": feature_block(learner, recognitions),
               "confusion": confusion(recognitions, env.labels, classes, networks),
               "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
     write_json(out / "evaluate.json", result)
-    lines = [f"# Evaluation of {args.checkpoint} on {args.data}", "",
+    lines = [f"# Evaluation of {args.learner} on {args.data}", "",
              f"accuracy {result['test']['accuracy']:.2f}; "
              + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
              "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result["confusion"], classes), "",
@@ -507,12 +507,12 @@ def robustness_command(args) -> int:
     kinds = _perturbations(args.perturb)
     if args.test_information is not None:
         LearnerSettings(test_information=args.test_information)  # refuses a bad threshold early
-    run = Path(args.checkpoint)
+    run = Path(args.run_folder)
     out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
     # results written inside the run folder belong to the run: the run is locked meanwhile, and they
     # are recorded in its ledger, so --overwrite of the run replaces them and nothing else
     inside = out is not None and out.absolute().is_relative_to(run.absolute())
-    with locked(run, "--checkpoint") if inside else nullcontext():
+    with locked(run, "--run") if inside else nullcontext():
         return _robustness(args, device, kinds, run, out, Ledger(str(run)) if inside else None)
 
 
@@ -528,7 +528,7 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
         if not folds:
             raise ValueError("no folds")
     except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
-        raise InputError(f"--checkpoint {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+        raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     start = time.perf_counter()
     space = FeatureSpace().to(device)
     answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
@@ -690,14 +690,15 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(run=lambda args: recognize_command(args, incremental=True))
     add_grasp_parser(commands)
     p = commands.add_parser("evaluate", help="recognize another image set with a saved learner")
-    p.add_argument("--checkpoint", required=True, help="a learner.json written by recognize")
+    p.add_argument("--learner", required=True, help="a learner.json written by recognize, or a fold's checkpoint.json")
     _task_options(p, ("coil", "folder"), "coil")
     p.add_argument("--size", type=at_least(9, "an image side in pixels", 8192), help="area-average the images down to this "
                    "shorter side (default: the side the learner learned from, where it learned from one)")
     p.add_argument("--out", default="runs/evaluate", help="output folder (default runs/evaluate)")
     p.set_defaults(run=evaluate_command)
     p = commands.add_parser("robustness", help="a run's learners and the peers on perturbed test views (7.2)")
-    p.add_argument("--checkpoint", required=True, help="a run folder written by recognize (report.json, foldK/learner.json)")
+    p.add_argument("--run", dest="run_folder", metavar="RUN", required=True,
+                   help="a run folder written by recognize (report.json, foldK/learner.json)")
     p.add_argument("--data", help="the run's image folder, where it has moved (default: as recorded in the run)")
     p.add_argument("--perturb", default="all", help=f"all (default) or a comma-separated list of {', '.join(SETS)}")
     p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same images")
@@ -706,7 +707,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--test-information", type=number, metavar="BITS",
                    help="stop each recognition at this many bits instead of the learner's own threshold")
     p.add_argument("--seed", type=seed, default=0, help="seed of the perturbations (default 0)")
-    p.add_argument("--out", help="output folder (default CHECKPOINT/robustness)")
+    p.add_argument("--out", help="output folder (default RUN/robustness)")
     p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=robustness_command)

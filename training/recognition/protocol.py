@@ -30,6 +30,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome
 from ftorch.recognition.learner import GENERATOR_STATE, DistinctiveFeatureLearner
+from ftorch.recognition.learner import KIND as LEARNER_KIND
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Cycle, Progress, Schedule, Stage
 from ftorch.space.features import unpack_features
@@ -153,6 +154,25 @@ class FoldState:
                             state["total_cycles"], [ClassAdded.from_dict(a) for a in state["added"]],
                             state["sampled_before"])
         return cls(progress, state["stages"], state["seconds"])
+
+
+TRAINING_ONLY = ("generator", "discriminates", "selected", "usage", "instances")  # a learner state's learning parts
+
+
+def load_learner(path) -> DistinctiveFeatureLearner:
+    """The learner in ``path``: a learner.json, or a fold's checkpoint.json, whose networks it reads
+    (the rest of a fold's state needs its image set: ``recognize --resume`` goes on learning from it);
+    one InputError for a damaged or foreign file."""
+    data = load_checkpoint(path, (LEARNER_KIND, FOLD_KIND))
+    if data["kind"] == LEARNER_KIND:
+        return DistinctiveFeatureLearner.load(path)
+    learner = DistinctiveFeatureLearner()
+    try:
+        state = {k: v for k, v in data["learner"].items() if k not in TRAINING_ONLY}
+        learner.load_state_dict(state, unpack_features(data["features"]))
+    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
+        raise InputError(f"{path}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
+    return learner
 
 
 @dataclass
