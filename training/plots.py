@@ -4,27 +4,31 @@ the feature counts, and the features sampled so far; and figure 5.19 for increme
 features sampled against the classes taught on log-log axes with the fitted power law. Every panel
 has labelled axes and a legend; the figure's title names the task and the seed. The ``*_figure``
 functions return the matplotlib figure: :func:`figure_rgb` renders it for PNG files,
-``SummaryWriter.add_figure`` for TensorBoard (both close it)."""
+``SummaryWriter.add_figure`` for TensorBoard. They are drawn without pyplot, so importing this module
+changes no matplotlib backend (a notebook keeps showing its figures inline)."""
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")  # files and TensorBoard only, never a window
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from training.recognition.report import shown  # noqa: E402
+from training.recognition.report import shown
 
 OUTCOMES = ("accuracy", "correct", "ambiguous", "ignorant", "wrong")
 
 
+def subplots(*grid, figsize, squeeze: bool = True, **options) -> tuple[Figure, object]:
+    """``pyplot.subplots`` without pyplot: a figure owned by no window manager, so drawing it here
+    neither opens a window nor switches the backend of a notebook that imports this module."""
+    figure = Figure(figsize=figsize, dpi=100)
+    return figure, figure.subplots(*grid, squeeze=squeeze, **options)
+
+
 def figure_rgb(figure: Figure) -> np.ndarray:
-    """A matplotlib figure as an RGB uint8 array (H, W, 3), closed afterwards."""
-    figure.canvas.draw()
-    picture = np.asarray(figure.canvas.buffer_rgba())[..., :3].copy()
-    plt.close(figure)
-    return picture
+    """A matplotlib figure as an RGB uint8 array (H, W, 3)."""
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def _panels(axes, fold: dict) -> None:
@@ -63,7 +67,7 @@ def _incremental(folds: list[dict]) -> bool:
 
 def _curves(folds: list[dict], title: str, incremental: bool) -> Figure:
     rows = 4 if incremental else 3
-    figure, axes = plt.subplots(rows, len(folds), figsize=(5.2 * len(folds), 2.6 * rows), squeeze=False, dpi=100)
+    figure, axes = subplots(rows, len(folds), figsize=(5.2 * len(folds), 2.6 * rows), squeeze=False)
     for k, fold in enumerate(folds):
         _panels(axes[:, k], fold)
     figure.suptitle(f"{title}: figure {'5.11' if incremental else '5.1'} form", fontsize=11)
@@ -93,7 +97,7 @@ def growth_figure(report: dict) -> Figure:
     fold 1 of every further seed of a ``--seeds`` run, in grey) with the power law a * classes**b
     fitted over the folds (the report's ``growth`` block; ``seeds.growth`` in the title)."""
     growth, config = report["growth"], report.get("config", {})
-    figure, ax = plt.subplots(figsize=(6.4, 4.6), dpi=100)
+    figure, ax = subplots(figsize=(6.4, 4.6))
     for k, points in growth["sampled"].items():
         ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {shown(growth['folds'][k]['exponent'])}")
     seeds = report.get("seeds", {}).get("growth")
@@ -144,7 +148,7 @@ def feature_types_figure(types: dict, title: str) -> Figure:
     kinds = sorted(types, key=lambda k: -types[k]["nodes"])
     sets = list(types[kinds[0]]["own"])
     flips = list(types[kinds[0]]["flipped"])
-    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5), dpi=100, gridspec_kw={"width_ratios": [len(sets), max(1, len(flips))]})
+    figure, (left, right) = subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [len(sets), max(1, len(flips))]})
     width = 0.8 / len(kinds)
     for j, kind in enumerate(kinds):
         t = types[kind]
@@ -182,7 +186,7 @@ def tradeoff_figure(result: dict, title: str) -> Figure:
     panels = [("mean over the sets", "mean"), *[(s, s) for s in sets]]
     cols = min(3, len(panels))
     rows = -(-len(panels) // cols)
-    figure, axes = plt.subplots(rows, cols, figsize=(5 * cols, 4 * rows), dpi=100, squeeze=False)
+    figure, axes = subplots(rows, cols, figsize=(5 * cols, 4 * rows), squeeze=False)
     for ax, (heading, key) in zip(axes.flat, panels):
         for method, (name, marker, colour) in METHODS.items():
             points = sorted((p for p in result["points"] if p["method"] == method

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from training.plots import plt
+from training.plots import subplots
 
 ERROR_BINS = np.arange(0, 65, 5.0)    # degrees; the last bin holds everything above 60 (figure 6.13)
 PROBE_BINS = np.arange(1, 21, 1.0)    # the last bin holds 20 probes or more (figure 6.14)
@@ -35,7 +35,7 @@ def _histogram(ax, values, bins: np.ndarray, xlabel: str, label: str, colour: st
 
 def error_figure(errors: list, title: str) -> Figure:
     """Figure 6.13: prediction error magnitudes (degrees; no prediction counts in the last bin)."""
-    figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
+    figure, ax = subplots(figsize=(4.2, 2.8))
     _histogram(ax, errors, ERROR_BINS, "orientation error, degrees (last bin: > 60, none)",
                "test grasps", "C0")
     ax.set_title(title, fontsize=9)
@@ -45,7 +45,7 @@ def error_figure(errors: list, title: str) -> Figure:
 
 def grasp_figure(columns: dict[str, list[dict]], title: str) -> Figure:
     """Figures 6.14 and 6.17: per column of grasps, the probes (top) and mu_0 (bottom) histograms."""
-    figure, axes = plt.subplots(2, len(columns), figsize=(3.4 * len(columns), 5.2), squeeze=False, dpi=100)
+    figure, axes = subplots(2, len(columns), figsize=(3.4 * len(columns), 5.2), squeeze=False)
     for n, (name, grasps) in enumerate(columns.items()):
         colour = f"C{n}"
         _histogram(axes[0, n], [g["probes"] for g in grasps], PROBE_BINS, "probes until the grasp settles", name, colour)
@@ -58,7 +58,7 @@ def grasp_figure(columns: dict[str, list[dict]], title: str) -> Figure:
 
 def reduction_figure(study: dict, title: str) -> Figure:
     """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent."""
-    figure, ax = plt.subplots(figsize=(4.2, 2.8), dpi=100)
+    figure, ax = subplots(figsize=(4.2, 2.8))
     bins = np.arange(-20, 105, 5.0)
     for n, mode in enumerate(study["reduction"]):
         key = (lambda e: e["poor_grasp_fraction"]) if mode == "offline" else (lambda e: e["online"]["poor_grasp_fraction"])
