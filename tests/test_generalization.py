@@ -5,11 +5,11 @@ import pytest
 import torch
 
 from ftorch.errors import InputError
+from ftorch.ksd import distinctive_at, ksd
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import Primitive
 from ftorch.recognition.counting import Counting
 from ftorch.recognition.inference import Recognition, recognize, residual_entropy
-from ftorch.recognition.ksd import distinctive_at, ksd
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
 
@@ -270,7 +270,7 @@ def test_bad_options_are_refused_with_one_line_before_any_work(option, tmp_path,
 
 @pytest.mark.parametrize("position", [0.0, 0.25, 0.5, 1.0])
 def test_the_cut_position_moves_the_cut_point_within_its_gap_and_nothing_else(position):
-    from ftorch.recognition.ksd import ksd
+    from ftorch.ksd import ksd
     values = torch.tensor([[0.1, 0.2, 0.3, 0.7, 0.8, 0.9]], dtype=torch.float64)
     own = torch.tensor([False, False, False, True, True, True])
     middle, moved = ksd(values, own, ~own), ksd(values, own, ~own, position)

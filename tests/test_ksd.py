@@ -6,9 +6,9 @@ import pytest
 import torch
 from scipy.stats import ks_2samp
 
+from ftorch.ksd import distinctive_at, ksd
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.counting import Counting
-from ftorch.recognition.ksd import distinctive_at, ksd
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -11,12 +11,13 @@ from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import in_use
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Recognition, accuracy, residual_entropy
-from ftorch.recognition.instances import GrowingTable, InstanceList
+from ftorch.recognition.instances import InstanceList
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.value_cache import ValueCache
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import FeatureTable, unpack_features
 from ftorch.space.generate import random_edgel_pair, random_texel
+from ftorch.tables import GrowingTable
 
 
 def shape(kind: int, angle: float, rng, size: int = 40) -> np.ndarray:

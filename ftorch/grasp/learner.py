@@ -55,12 +55,12 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..recognition.instances import GrowingTable
-from ..recognition.ksd import ksd
+from ..ksd import ksd
 from ..space.evaluate import feature_values
 from ..space.features import Feature
 from ..space.generate import expand_geometric, random_edgel_pair
 from ..space.record import ImageRecords
+from ..tables import GrowingTable
 from .vonmises import VonMisesMixture, fit_mixtures
 
 MU0_CAP = 2.0

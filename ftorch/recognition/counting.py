@@ -19,11 +19,11 @@ from collections.abc import Hashable, Iterable
 import numpy as np
 import torch
 
+from ..ksd import distinctive_at, ksd
 from .bayes import ClassNetwork
 from .environment import ImageSet
 from .inference import Recognition
 from .instances import InstanceList
-from .ksd import distinctive_at, ksd
 
 HELD_OUT = 2  # measured instances each side needs before a calibrated count leaves the selection images out
 

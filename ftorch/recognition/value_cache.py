@@ -8,7 +8,8 @@ import numpy as np
 from ..checkpoint import decode_array, encode_array, stored_position
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
-from .instances import GrowingTable, are_stored_values
+from ..tables import GrowingTable
+from .instances import are_stored_values
 
 
 class ValueCache:
