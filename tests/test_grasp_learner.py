@@ -328,3 +328,32 @@ def test_a_perfect_feature_not_found_in_the_image_is_absent():
         for s in learner.sets.values():
             s.measure = lambda records: (np.zeros((1, 1)), np.full((1, 1), 0.3))
         assert math.isfinite(learner.recommend([None]).theta_h)
+
+
+def test_a_saved_grasp_learner_recommends_as_before_and_refuses_to_learn(clean_pool, tmp_path):
+    from ftorch import NotFittedError
+    from ftorch.grasp.learner import Experience
+
+    learner = GraspLearner(math.radians(10), seed=0, finger_choice="quality", mu0_split=0.3)
+    with pytest.raises(NotFittedError, match="no feature model yet"):
+        learner.save(tmp_path / "grasp.json")
+    fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
+    fold.fit(2)
+    learner.save(tmp_path / "grasp.json")
+    loaded = GraspLearner.load(tmp_path / "grasp.json")
+    assert (loaded.finger_choice, loaded.mu0_split, loaded.t_dtheta) == ("quality", 0.3, math.radians(10))
+    batch = FeatureSpace().records([torch.from_numpy(t.image) for t in fold.objects])
+    before, after = learner.recommend_all(batch), loaded.recommend_all(batch)
+    assert sum(r is not None for r in before) > len(before) // 2
+    assert before == after  # the same fingers, orientations, features, KSD and E[mu_0], to the bit
+    with pytest.raises(InputError, match="recommends but cannot learn"):
+        loaded.learn("x", fold.records[fold.objects[0].key], Experience(2, 0.0, 0.1, math.pi / 2))
+    import json
+
+    saved = json.loads((tmp_path / "grasp.json").read_text())
+    for damage in ({"fingers": 4}, {"models": []}, {"features": [10**6]}):
+        bad = json.loads(json.dumps(saved))
+        bad["sets"][1].update(damage)
+        (tmp_path / "bad.json").write_text(json.dumps(bad))
+        with pytest.raises(InputError, match="damaged grasp learner"):
+            GraspLearner.load(tmp_path / "bad.json")

@@ -54,16 +54,19 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
+from ..errors import InputError, NotFittedError
 from ..ksd import ksd
 from ..space.evaluate import feature_values
-from ..space.features import Feature
+from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.generate import expand_geometric, random_edgel_pair
 from ..space.record import ImageRecords
 from ..tables import GrowingTable
 from .vonmises import VonMisesMixture, fit_mixtures
 
 MU0_CAP = 2.0
+KIND = "grasp-learner"
+SETTINGS = ("t_dtheta", "max_k", "min_points", "discard_every", "max_distance", "finger_choice", "mu0_split")
 FINGERS = (2, 3)
 FINGER_CHOICES = ("thesis", "pooled", "quality")  # alg. 6.2 step 2b: see the module doc
 
@@ -111,6 +114,13 @@ class FeatureModel:
     def to_dict(self) -> dict:
         return {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
                 "expected_mu0": self.expected_mu0, "support": self.support}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "FeatureModel":
+        """A model written by :meth:`to_dict` (without the instance rows it was fitted on)."""
+        numbers = [float(data[k]) for k in ("ksd", "alpha", "offset", "expected_mu0")]
+        return cls(numbers[0], numbers[1], VonMisesMixture.from_dict(data["mixture"]), numbers[2], numbers[3],
+                   int(data["support"]))
 
 
 class GraspFeatureSet:
@@ -394,6 +404,44 @@ class GraspLearner:
         self.discard_every, self.max_distance = discard_every, max_distance
         self.sets = {c: GraspFeatureSet(c) for c in FINGERS}
         self.generator = torch.Generator().manual_seed(seed)
+        self.trainable = True  # False once loaded: the images of past grasps are not saved
+
+    # -- state -----------------------------------------------------------------------------------
+    def save(self, path) -> None:
+        """Write what recommending needs (JSON, atomically): the settings and, per finger count, the
+        features, their models (alg. 6.1) and quality splits. The instance lists are not written: new
+        features are measured on the images of past grasps, which a file does not hold, so a loaded
+        learner recommends but does not learn. NotFittedError before any feature has a model."""
+        if not any(m is not None for s in self.sets.values() for m in s.models):
+            raise NotFittedError("this GraspLearner has no feature model yet: learn from some grasps first")
+        table = FeatureTable()
+        sets = [{"fingers": c, "features": [table.index(f) for f in s.features],
+                 "models": [None if m is None else m.to_dict() for m in s.models],
+                 "quality": encode_array(np.ascontiguousarray(s.quality, dtype=np.float64))}
+                for c, s in self.sets.items()]
+        save_checkpoint(path, KIND, {"settings": {k: getattr(self, k) for k in SETTINGS}, "sets": sets,
+                                     "features": table.pack()})
+
+    @classmethod
+    def load(cls, path) -> "GraspLearner":
+        """Read a learner written by :meth:`save`; one InputError for a damaged or foreign file."""
+        data = load_checkpoint(path, KIND)
+        try:
+            learner = cls(**data["settings"])
+            features = unpack_features(data["features"])
+            for record in data["sets"]:
+                feature_set = learner.sets[record["fingers"]]
+                chosen = [features[stored_position(i, len(features))] for i in record["features"]]
+                models = [None if m is None else FeatureModel.from_dict(m) for m in record["models"]]
+                quality = decode_array(record["quality"], shape=(4, len(chosen)))
+                if len(models) != len(chosen):
+                    raise ValueError(f"{len(chosen)} features but {len(models)} models")
+                feature_set.features, feature_set.models, feature_set.quality = chosen, models, quality
+                feature_set.born, feature_set.used = [0] * len(chosen), [0] * len(chosen)
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as err:
+            raise InputError(f"{path}: damaged grasp learner ({type(err).__name__}: {err})") from None
+        learner.trainable = False
+        return learner
 
     def _candidates(self, records: ImageRecords, fingers: int | None) -> list[int]:
         if len(records) != 1:
@@ -469,6 +517,9 @@ class GraspLearner:
         """Steps 5-10 after a grasp with ``experience.fingers`` fingers of the image ``records``
         (``image`` names it in the instance list). Returns 'correct', 'refit' (right after step 7)
         or 'sampled' (step 10)."""
+        if not self.trainable:
+            raise InputError("this grasp learner was loaded from a file, which holds no images of past grasps: "
+                             "it recommends but cannot learn")
         c = self._candidates(records, experience.fingers)[0]
         feature_set = self.sets[c]
         values, thetas = (a[0] for a in feature_set.measure(records))
