@@ -283,7 +283,7 @@ def recognition(args) -> dict:
     (fast, ours), (slow, theirs) = _interleaved([lambda: [infer_afresh(net, x) for x in states],
                                                  lambda: [infer_afresh(einsum, x) for x in states]], repeats, device)
     model = VariableElimination(net.to_pgmpy())
-    name = {k: f"f{i}" for i, k in enumerate(net.features)}
+    name = net.node_names()
     few = states[:10 if args.quick else 30]
 
     def pgmpy_all():
