@@ -213,6 +213,10 @@ def save_checkpoint(path, kind: str, payload: dict) -> Path:
     return write_atomic(path, text.encode("utf-8"))
 
 
+# what reading a damaged state (missing keys, wrong types, out-of-range numbers or positions) raises
+DAMAGED = (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError)
+
+
 def load_checkpoint(path, kind: str | tuple[str, ...]) -> dict:
     """Read a checkpoint of ``kind`` (or of one of several kinds); InputError naming ``path`` for anything else."""
     path = Path(path)

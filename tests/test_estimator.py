@@ -4,13 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from ftorch import (
-    DistinctiveFeatureLearner,
-    ImageSet,
-    InputError,
-    LearnerSettings,
-    NotFittedError,
-)
+from ftorch import DistinctiveFeatureLearner, ImageSet, InputError, LearnerSettings, NotFittedError
 from ftorch.recognition.inference import Result, accuracy
 from ftorch.recognition.stages import Schedule, Stage
 from training.data.datasets import plym_task

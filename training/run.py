@@ -618,9 +618,9 @@ def _learner_options(p: argparse.ArgumentParser) -> None:
     """One option per learner setting, as :class:`LearnerSettings` describes it (its defaults: the measured best)."""
     for f in fields(LearnerSettings):
         flag, meta, default = "--" + f.name.replace("_", "-"), f.metadata, f.default
-        if f.type == "bool":
+        if isinstance(default, bool):
             p.add_argument(flag, action="store_true", help=f"{meta['help']} (default off)")
-        elif f.type == "int":
+        elif isinstance(default, int):
             p.add_argument(flag, type=at_least(meta["at_least"], meta["what"], meta["at_most"]), default=default,
                            metavar=meta["metavar"], help=f"{meta['help']} (default {default})")
         elif f.name == "primitives":

@@ -54,7 +54,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
-from ..checkpoint import decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
+from ..checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from ..errors import InputError, NotFittedError
 from ..ksd import ksd
 from ..space.evaluate import feature_values
@@ -438,7 +438,7 @@ class GraspLearner:
                     raise ValueError(f"{len(chosen)} features but {len(models)} models")
                 feature_set.features, feature_set.models, feature_set.quality = chosen, models, quality
                 feature_set.born, feature_set.used = [0] * len(chosen), [0] * len(chosen)
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as err:
+        except DAMAGED as err:
             raise InputError(f"{path}: damaged grasp learner ({type(err).__name__}: {err})") from None
         learner.trainable = False
         return learner

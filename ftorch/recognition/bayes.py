@@ -36,6 +36,11 @@ CLASS = "class"
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
+def _identifier(text: str) -> str:
+    """``text`` as an identifier of the exported formats (BIF): runs of other characters become one '_'."""
+    return re.sub(r"\W+", "_", text).strip("_")
+
+
 def information(joint: np.ndarray) -> np.ndarray:
     """Mutual information in bits of normalised joint tables (k, 2, 2); 0 where a table is NaN."""
     joint = np.where(joint > 0, joint, 0.0)  # NaN (impossible evidence) and zeros contribute nothing
@@ -489,9 +494,8 @@ class ClassNetwork:
     def node_names(self) -> dict:
         """The exported name of every node: 'class', and per feature its position and kind
         ('f0_texel', 'f1_geometric_edgel_edgel', ...), identifiers as BIF requires."""
-        def kind(key) -> str:
-            return re.sub(r"\W+", "_", key.describe() if hasattr(key, "describe") else str(key)).strip("_")
-        return {CLASS: CLASS, **{k: f"f{i}_{kind(k)}".rstrip("_") for i, k in enumerate(self.features)}}
+        kinds = [_identifier(k.describe() if hasattr(k, "describe") else str(k)) for k in self.features]
+        return {CLASS: CLASS, **{k: f"f{i}_{kind}".rstrip("_") for i, (k, kind) in enumerate(zip(self.features, kinds))}}
 
     def to_pgmpy(self):
         """The network as a pgmpy ``DiscreteBayesianNetwork`` named after its class, nodes named by
@@ -501,7 +505,7 @@ class ClassNetwork:
 
         name = self.node_names()
         model = DiscreteBayesianNetwork()
-        label = re.sub(r"\W+", "_", str(self.label)).strip("_")
+        label = _identifier(str(self.label))
         model.name = label if label[:1].isalpha() else f"class_{label}"
         model.add_node(CLASS)
         for key in self.features:

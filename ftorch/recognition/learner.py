@@ -65,13 +65,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from ..checkpoint import (
-    decode_array,
-    encode_array,
-    load_checkpoint,
-    save_checkpoint,
-    stored_position,
-)
+from ..checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from ..errors import InputError, NotFittedError
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.record import FeatureSpace
@@ -80,20 +74,13 @@ from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
-from .inference import (
-    Outcome,
-    Recognition,
-    Result,
-    accuracy,
-    outcome,
-    recognize,
-    residual_entropy,
-)
+from .inference import Outcome, Recognition, Result, accuracy, outcome, recognize, residual_entropy
 from .instances import InstanceList, are_stored_values
 from .settings import Evidence, LearnerSettings, bits, whole
 from .stages import MAX_CYCLES, Schedule, Stage
 
 KIND = "learner"
+TRAINING_STATE = ("generator", "discriminates", "selected", "usage", "instances")  # what state_dict(training=True) adds
 
 
 class Presentation(NamedTuple):
@@ -522,13 +509,7 @@ class DistinctiveFeatureLearner:
         # min_information's, which its answers used)
         stored = {k: state[k] for k in ("n_ex", "n_fgen", "min_information")}  # in every state
         stored.update({k: state[k] for k in LearnerSettings.names() if k in state})
-        stored.setdefault("test_information", stored["min_information"])
-        for k in ("n_ex", "n_fgen", "search_rounds", "redundancy"):
-            if k in stored:
-                stored[k] = _count(stored[k])
-        for k in ("min_information", "pseudocount", "leak", "cut_position", "test_information"):
-            if k in stored:
-                stored[k] = _number(stored[k])
+        stored.setdefault("test_information", stored["min_information"])  # validated by LearnerSettings
         self.seed = whole("seed", state.get("seed", 0), 0, MAX_SEED)  # states written before it was recorded: 0
         self.set_params(**{**LearnerSettings.thesis().to_dict(), **stored})
         self.presentations, self.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])
@@ -590,6 +571,6 @@ class DistinctiveFeatureLearner:
         learner = cls(device=device)
         try:
             learner.load_state_dict(data["learner"])
-        except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
+        except DAMAGED as err:
             raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
         return learner

@@ -92,7 +92,7 @@ class LearnerSettings:
     def thesis(cls, **changes) -> "LearnerSettings":
         """The dissertation's settings (alg. 4.4 until I_max = 0, relative frequencies, alg. 5.2 as
         printed), with ``changes``."""
-        return replace(cls(min_information=0.0, pseudocount=0.0, redundancy=1), **changes)
+        return cls(min_information=0.0, pseudocount=0.0, redundancy=1).replace(**changes)
 
     def replace(self, **changes) -> "LearnerSettings":
         """These settings with ``changes``; InputError naming an unknown option."""

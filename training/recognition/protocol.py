@@ -20,16 +20,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ftorch.checkpoint import (
-    decode_array,
-    encode_array,
-    load_checkpoint,
-    save_checkpoint,
-)
+from ftorch.checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint
 from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome
-from ftorch.recognition.learner import GENERATOR_STATE, DistinctiveFeatureLearner
+from ftorch.recognition.learner import GENERATOR_STATE, TRAINING_STATE, DistinctiveFeatureLearner
 from ftorch.recognition.learner import KIND as LEARNER_KIND
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Cycle, Progress, Schedule, Stage
@@ -156,9 +151,6 @@ class FoldState:
         return cls(progress, state["stages"], state["seconds"])
 
 
-TRAINING_ONLY = ("generator", "discriminates", "selected", "usage", "instances")  # a learner state's learning parts
-
-
 def load_learner(path) -> DistinctiveFeatureLearner:
     """The learner in ``path``: a learner.json, or a fold's checkpoint.json, whose networks it reads
     (the rest of a fold's state needs its image set: ``recognize --resume`` goes on learning from it);
@@ -168,9 +160,9 @@ def load_learner(path) -> DistinctiveFeatureLearner:
         return DistinctiveFeatureLearner.load(path)
     learner = DistinctiveFeatureLearner()
     try:
-        state = {k: v for k, v in data["learner"].items() if k not in TRAINING_ONLY}
+        state = {k: v for k, v in data["learner"].items() if k not in TRAINING_STATE}
         learner.load_state_dict(state, unpack_features(data["features"]))
-    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
+    except DAMAGED as err:
         raise InputError(f"{path}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
     return learner
 
@@ -222,7 +214,7 @@ class Fold:
             learner.load_state_dict(data["learner"], features, env=self.train)
             order.set_state(torch.from_numpy(decode_array(data["order"], shape=GENERATOR_STATE).astype(np.uint8)))
             state = FoldState.from_dict(data["state"])
-        except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError, AttributeError) as err:
+        except DAMAGED as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
 
@@ -254,12 +246,12 @@ class Fold:
         written = time.perf_counter()
         with tqdm(desc=f"fold {self.fold}", unit="cycle", disable=not self.progress, leave=False) as bar:
             while not progress.done:
-                taught, added = schedule.taught(), len(progress.added)
+                phase, added = progress.phase, len(progress.added)
                 if not schedule.stage_over and before_cycle is not None:
                     before_cycle()
                 step = schedule.step()
                 if isinstance(step, Stage):
-                    state.entries.append(self._stage_entry(learner, step, taught, start))
+                    state.entries.append(self._stage_entry(learner, step, schedule, phase, start))
                     self._log_stage(state.entries[-1])
                     if len(progress.added) > added:
                         self._log_class_added(progress.added[-1])
@@ -281,10 +273,10 @@ class Fold:
             entry["added"] = [a.to_dict() for a in progress.added]
         return entry, learner
 
-    def _stage_entry(self, learner, stage: Stage, taught: list, start: float) -> dict:
-        """A finished stage's report entry: the stage, tested on the test images of the classes taught."""
-        taught_set = set(taught)
-        tested = [i for i, labels in enumerate(self.test.labels) if labels <= taught_set]
+    def _stage_entry(self, learner, stage: Stage, schedule: Schedule, phase: int, start: float) -> dict:
+        """A finished stage's report entry: the stage, tested on the test images of the classes taught
+        in its ``phase``."""
+        taught, tested = schedule.taught(phase), schedule.indices(self.test, phase)
         recognitions = learner.recognize_many(self.test, tested)
         labels = [self.test.labels[i] for i in tested]
         return {**stage.to_dict(), "test": test_block(recognitions, labels, taught),
