@@ -2,16 +2,19 @@
 import importlib.util
 import json
 import re
+import shutil
 import time
 from pathlib import Path
 
 import pytest
 import torch
 
+from ftorch import FeatureSpace
 from ftorch.errors import InputError
 from training import run
 from training.cli.outputs import Ledger
 from training.cli.parallel import CORES, TasksFailed, run_tasks, share_idle_cores
+from training.commands import recognize
 
 from .test_protocol import check_events
 
@@ -135,8 +138,8 @@ def test_a_bad_worker_count_gets_one_line(tmp_path, capsys):
 def test_the_folds_compute_each_view_set_once(tmp_path, monkeypatch):
     """Fold 2 trains on fold 1's test views and tests on its training views: two record sets, not four."""
     calls = []
-    records = run.FeatureSpace.records
-    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    records = FeatureSpace.records
+    monkeypatch.setattr(FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
     assert run.main([*ARGS, "--out", str(tmp_path / "one")]) == 0
     assert len(calls) == 2 and sum(calls) == 3 * 15  # three solids of 15 views, each view once
 
@@ -147,16 +150,16 @@ def test_a_process_without_shared_records_computes_each_view_set_once(tmp_path, 
     seeds = [*ARGS, "--seeds", "2"]  # fold 1 and 2 of seed 1, fold 1 of seed 2: all on the same two view sets
     assert run.main([*seeds, "--out", str(tmp_path / "shared")]) == 0
     calls = []
-    records = run.FeatureSpace.records
-    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
-    monkeypatch.setattr(run, "shared_records", lambda *arguments: {})
+    records = FeatureSpace.records
+    monkeypatch.setattr(FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    monkeypatch.setattr(recognize, "shared_records", lambda *arguments: {})
     assert run.main([*seeds, "--out", str(tmp_path / "own")]) == 0
     assert len(calls) == 2 and sum(calls) == 3 * 15  # not six sets
     assert report_text(tmp_path / "own") == report_text(tmp_path / "shared")
     calls.clear()  # a worker that runs a task of another data set next (a Ray worker serves many runs)
     other = tmp_path / "other"
     args = {**vars(run.parser().parse_args([*seeds, "--size", "24"])), "quiet": True}
-    run.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False,
+    recognize.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False,
                    "ledger": Ledger(str(other))})
     assert len(calls) == 2  # its own records, not those of the views with the same indices before
 
@@ -166,7 +169,7 @@ def is_shared(records) -> bool:
 
 
 def test_worker_processes_receive_records_in_shared_memory():
-    records = run.FeatureSpace().records([run.torch.rand(32, 32) for _ in range(3)])
+    records = FeatureSpace().records([torch.rand(32, 32) for _ in range(3)])
     assert not is_shared(records)
     assert run_tasks(is_shared, [records, records], ["a", "b"], workers=2, progress=False) == [True, True]
     assert is_shared(records)  # moved there once, in place: the workers map the parent's pyramid, no copies
@@ -174,23 +177,23 @@ def test_worker_processes_receive_records_in_shared_memory():
 
 def test_records_are_shared_only_where_workers_can_map_them(monkeypatch):
     args = run.parser().parse_args([*ARGS, "--workers", "2"])
-    task = run.load_task(*run._task_key(args))
+    task = recognize.load_task(*recognize._task_key(args))
     jobs = [{"fold": 1}, {"fold": 2}]
-    shared = run.shared_records(args, task, jobs, run.torch.device("cpu"))
+    shared = recognize.shared_records(args, task, jobs, torch.device("cpu"))
     assert set(shared) == {tuple(ix) for ix in task.fold(1)}  # fold 2's sets are fold 1's
     args.augment = 1  # augmented training sets are drawn per fold: only the test sets are shared
-    assert set(run.shared_records(args, task, jobs, run.torch.device("cpu"))) == {tuple(task.fold(k)[1]) for k in (1, 2)}
+    assert set(recognize.shared_records(args, task, jobs, torch.device("cpu"))) == {tuple(task.fold(k)[1]) for k in (1, 2)}
     args.augment, args.ray = 0, "auto"  # Ray tasks may run elsewhere: they compute their own
-    assert run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}
+    assert recognize.shared_records(args, task, jobs, torch.device("cpu")) == {}
     args.ray = None
-    assert run.shared_records(args, task, jobs, run.torch.device("cuda")) == {}  # no CUDA memory between processes
+    assert recognize.shared_records(args, task, jobs, torch.device("cuda")) == {}  # no CUDA memory between processes
     nbytes = sum(r.nbytes for r in shared.values())
     pyramids = sum(r.pyramid.first.nbytes + r.pyramid.second.nbytes for r in shared.values())
     calls = []
-    records = run.FeatureSpace.records
-    monkeypatch.setattr(run.FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
+    records = FeatureSpace.records
+    monkeypatch.setattr(FeatureSpace, "records", lambda self, images, **kw: calls.append(len(images)) or records(self, images, **kw))
     for free, computed in ((nbytes, 2), (nbytes - 1, 2), (pyramids, 2), (pyramids - 1, 0)):  # /dev/shm too small (containers)
-        monkeypatch.setattr(run.shutil, "disk_usage", lambda path: run.shutil._ntuple_diskusage(1 << 40, (1 << 40) - free, free))
+        monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 40, (1 << 40) - free, free))
         calls.clear()
-        assert (run.shared_records(args, task, jobs, run.torch.device("cpu")) == {}) == (free < nbytes)
+        assert (recognize.shared_records(args, task, jobs, torch.device("cpu")) == {}) == (free < nbytes)
         assert len(calls) == computed  # none where the pyramids alone would not fit

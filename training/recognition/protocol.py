@@ -29,6 +29,9 @@ from ftorch.recognition.learner import KIND as LEARNER_KIND
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Cycle, Progress, Schedule, Stage
 from ftorch.space.features import unpack_features
+from ftorch.space.record import FeatureSpace, ImageRecords
+from training.data.augment import augment
+from training.data.datasets import Task
 
 FOLD_KIND = "fold"
 
@@ -209,7 +212,7 @@ class Fold:
         learner = DistinctiveFeatureLearner(device=self.config.device)
         order = torch.Generator()
         try:
-            features = unpack_features(data["features"])
+            features = unpack_features(data["features"], self.train.cache.memo)  # blocks read: packed already
             self.train.load_cache_state(data["cache"], features)  # first: the learner's instance values refer to it
             learner.load_state_dict(data["learner"], features, env=self.train)
             order.set_state(torch.from_numpy(decode_array(data["order"], shape=GENERATOR_STATE).astype(np.uint8)))
@@ -306,3 +309,16 @@ class Fold:
             self.logger.add_scalar(f"features/{key}", value, step)
         for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned", "classes"):
             self.logger.add_scalar(f"stage/{key}", float(stage[key]), step)
+
+
+def image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,
+               seed: int = 0, fold: int = 0, records: ImageRecords | None = None) -> ImageSet:
+    """Views ``indices`` of the task, followed by ``copies`` augmented copies of each (training.data.augment);
+    ``records``: the views' records where they were computed before (without copies only)."""
+    # with copies the views are loaded here once, for the copies and the set alike
+    images = [task.view(i) if copies else task.images[i] for i in indices]
+    labels, names = [{task.labels[i]} for i in indices], [task.names[i] for i in indices]
+    extra, extra_labels = augment(images, labels, copies, seed, fold)
+    names += [f"{name}~{n + 1}" for n in range(copies) for name in names]
+    return ImageSet(images + extra, labels + extra_labels, space, names=names, progress=progress,
+                    records=None if copies else records)

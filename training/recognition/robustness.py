@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack
@@ -272,3 +273,12 @@ def split_peers(task: Task, folds: list[int]) -> dict:
     mean = {p: {key: float(np.mean([r[p][key]["accuracy"] if isinstance(r[p][key], dict) else r[p][key] for r in results]))
                 for key in results[0][p]} for p in PEERS}
     return {"folds": results, "average": mean}
+
+
+def perturbations(text: str) -> list[str]:
+    """--perturb: ``all`` or a comma-separated choice of :data:`SETS`, each once, in the order given."""
+    kinds = list(SETS) if text == "all" else [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in SETS]
+    if unknown or not kinds:
+        raise InputError(f"--perturb {text!r}: expected all or a comma-separated list of {', '.join(SETS)}")
+    return list(dict.fromkeys(kinds))

@@ -1,0 +1,107 @@
+"""``robustness``: a run's learners and the peers on perturbed test views (7.2)."""
+from __future__ import annotations
+
+import json
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+import torch
+
+from ftorch import FeatureSpace
+from ftorch.checkpoint import write_text
+from ftorch.errors import InputError
+from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.settings import Evidence, LearnerSettings
+from ftorch.space.draw import save_rgb
+from training.cli.arguments import number, seed
+from training.cli.devices import described, machine, resolve_device
+from training.cli.jobs import device_options
+from training.cli.outputs import Ledger, locked, writable_folder
+from training.data.datasets import load_task
+from training.plots import feature_types_figure, figure_rgb
+from training.recognition.report import (
+    write_json,
+)
+from training.recognition.robustness import SETS, feature_tables, fold_robustness, perturbations
+from training.recognition.robustness import average as average_robustness
+from training.recognition.robustness import table as robustness_table
+
+
+def robustness_command(args) -> int:
+    """The robustness benchmark on a recognize run's folds (training/recognition/robustness.py)."""
+    device = resolve_device(args.device)
+    kinds = perturbations(args.perturb)
+    if args.test_information is not None:
+        LearnerSettings(test_information=args.test_information)  # refuses a bad threshold early
+    run = Path(args.run_folder)
+    out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
+    # results written inside the run folder belong to the run: the run is locked meanwhile, and they
+    # are recorded in its ledger, so --overwrite of the run replaces them and nothing else
+    inside = out is not None and out.absolute().is_relative_to(run.absolute())
+    with locked(run, "--run") if inside else nullcontext():
+        return _robustness(args, device, kinds, run, out, Ledger(str(run)) if inside else None)
+
+
+def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger | None) -> int:
+    """The body of :func:`robustness_command` once its output folder is held."""
+    try:
+        report = json.loads((run / "report.json").read_text())
+        config = report["config"]
+        data = args.data or config["data"]
+        task = load_task(config["task"], data, len(config["classes"]), config["views"],
+                         config["size"], config["seed"], config["first_view"])
+        folds = [f["fold"] for f in report["folds"]]
+        if not folds:
+            raise ValueError("no folds")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
+        raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+    start = time.perf_counter()
+    space = FeatureSpace().to(device)
+    answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
+    if args.test_information is not None:
+        answering["test_information"] = args.test_information
+    results = []
+    for k in folds:
+        learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json").set_params(**answering)
+        results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet, ledger))
+    result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
+              "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
+              "average": average_robustness(results), "machine": machine(device),
+              "seconds": time.perf_counter() - start}
+    types = result["average"].get("types")
+    if ledger is not None:
+        ledger.files(out / "robustness.json", out / "robustness.md", *([out / "features.png"] if types else []))
+    write_json(out / "robustness.json", result)
+    if types:
+        save_rgb(out / "features.png", figure_rgb(feature_types_figure(types, f"{run}: which features survive, "
+                                                                              f"perturbation seed {args.seed}")))
+    lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
+             f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the "
+             "ignorant share (def. 4.5), "
+             "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
+             "the clean view's.", "", *robustness_table(result), "",
+             *[f"![fold {k}](fold{k}/overview.png)" for k in folds], "", *feature_tables(result),
+             *(["![which features survive](features.png)", ""] if types else [])]
+    write_text(out / "robustness.md", "\n".join(lines))
+    print("\n".join(robustness_table(result)))
+    print(f"report: {out / 'robustness.md'} and {out / 'robustness.json'}; perturbed images in {out}/foldK/SET/")
+    return 0
+
+
+def add_parser(commands) -> None:
+    """The ``robustness`` sub-command and its options."""
+    p = commands.add_parser("robustness", help="a run's learners and the peers on perturbed test views (7.2)")
+    p.add_argument("--run", dest="run_folder", metavar="RUN", required=True,
+                   help="a run folder written by recognize (report.json, foldK/learner.json)")
+    p.add_argument("--data", help="the run's image folder, where it has moved (default: as recorded in the run)")
+    p.add_argument("--perturb", default="all", help=f"all (default) or a comma-separated list of {', '.join(SETS)}")
+    p.add_argument("--peers", action="store_true", help="also pixel 1-NN and OpenCV SIFT matching on the same images")
+    p.add_argument("--evidence", choices=("learned", *Evidence), default="learned",
+                   help="recognize with the evidence mode the learner was trained with (default) or another")
+    p.add_argument("--test-information", type=number, metavar="BITS",
+                   help="stop each recognition at this many bits instead of the learner's own threshold")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the perturbations (default 0)")
+    p.add_argument("--out", help="output folder (default RUN/robustness)")
+    device_options(p)
+    p.set_defaults(run=robustness_command)
