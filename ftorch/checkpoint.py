@@ -44,23 +44,54 @@ MAX_BYTES = 1 << 30  # no array or text in a checkpoint inflates to more
 
 ROWS = 1024  # rows per compressed block of an array
 SLICE = 1 << 20  # values per slice of the float32 exactness check
-# (BLAKE2b digest of the raw bytes, xz) -> compressed block, the most recent 256: keyed by a digest,
-# not the bytes, so that remembering the block of a large array holds no copy of it
-_blocks: OrderedDict = OrderedDict()
+MEMO_SIZE = 256  # blocks a memo remembers of each sort (arrays' and feature tables')
+
+
+class Memo:
+    """Compressed blocks a writer made before, reused where the same data come again: the value
+    cache's table and its feature table grow between the checkpoints of a run, and all but their
+    last blocks are unchanged. Owned by what grows (:class:`~ftorch.recognition.value_cache.ValueCache`),
+    it lives as long as that; each sort holds the most recent :data:`MEMO_SIZE` blocks.
+
+    Array blocks are keyed by the BLAKE2b digest of their raw bytes (and the compressor), not the
+    bytes, so remembering the block of a large array holds no copy of it; feature blocks by the ids
+    of their features, each entry keeping its features alive, so that their ids cannot be reused
+    while it is remembered."""
+
+    def __init__(self):
+        self.arrays: OrderedDict = OrderedDict()  # (digest, xz) -> block
+        self.features: OrderedDict = OrderedDict()  # ids of a chunk's features -> (the features, the block)
+
+    @staticmethod
+    def _keep(memo: OrderedDict, key, value) -> None:
+        memo[key] = value
+        if len(memo) > MEMO_SIZE:
+            memo.popitem(last=False)
+
+    def feature_block(self, chunk: tuple) -> dict | None:
+        """The packed block of the features ``chunk`` (these very objects), where remembered."""
+        known = self.features.get(tuple(map(id, chunk)))
+        return None if known is None else known[1]
+
+    def remember_features(self, chunk: tuple, block: dict) -> dict:
+        """Remember ``block`` as the packed form of ``chunk``; returns it."""
+        self._keep(self.features, tuple(map(id, chunk)), (chunk, block))
+        return block
+
+    def compress(self, raw: bytes, xz: bool = False) -> str:
+        """:func:`_compress`, once per distinct block."""
+        key = (hashlib.blake2b(raw, digest_size=32).digest(), xz)
+        block = self.arrays.get(key)
+        if block is None:
+            block = _compress(raw, xz)
+            self._keep(self.arrays, key, block)
+        return block
 
 
 def _compress(raw: bytes, xz: bool = False) -> str:
-    """Compressed bytes (zlib, or xz at preset 1) in base64; blocks met again (unchanged rows of a
-    growing table) are reused."""
-    key = (hashlib.blake2b(raw, digest_size=32).digest(), xz)
-    block = _blocks.get(key)
-    if block is None:
-        packed = lzma.compress(raw, preset=1) if xz else zlib.compress(raw, 6)
-        block = base64.b64encode(packed).decode("ascii")
-        _blocks[key] = block
-        if len(_blocks) > 256:
-            _blocks.popitem(last=False)
-    return block
+    """Compressed bytes (zlib, or xz at preset 1) in base64."""
+    packed = lzma.compress(raw, preset=1) if xz else zlib.compress(raw, 6)
+    return base64.b64encode(packed).decode("ascii")
 
 
 def _inflate(text, size: int) -> bytes:
@@ -81,10 +112,11 @@ def _inflate(text, size: int) -> bytes:
     return raw
 
 
-def encode_array(array: np.ndarray, reference: np.ndarray | None = None) -> dict:
+def encode_array(array: np.ndarray, reference: np.ndarray | None = None, memo: Memo | None = None) -> dict:
     """A float array as JSON-ready data: shape, dtype (f4 where exact, else f8) and compressed bytes;
     with a ``reference`` of the same shape, the bits of the array XOR those of the reference in that
-    dtype ("relative"): :func:`decode_array` restores it given the same reference."""
+    dtype ("relative"): :func:`decode_array` restores it given the same reference. ``memo``: blocks
+    compressed before, reused (:class:`Memo`)."""
     if np.asarray(array).dtype == np.float32:
         data = np.require(array, dtype="<f4", requirements="C")
     else:
@@ -100,7 +132,8 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None) -> dict
         data = data.view(_BITS[data.dtype.str]) ^ _reference(reference, data.shape, data.dtype)
         state["relative"] = True
     rows = data.reshape(len(data), int(np.prod(data.shape[1:]))) if data.ndim else data.reshape(1, 1)
-    state["blocks"] = [_compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]
+    compress = _compress if memo is None else memo.compress
+    state["blocks"] = [compress(rows[s : s + ROWS].tobytes()) for s in range(0, max(len(rows), 1), ROWS)]
     return state
 
 

@@ -102,8 +102,9 @@ def test_deeply_nested_or_foreign_feature_tables_are_refused():
 
 
 def test_a_grown_table_packs_to_what_a_fresh_one_packs():
+    from ftorch.checkpoint import Memo
     features = [Texel([float(i + 1)] + [0.5] * 14) for i in range(2 * CHUNK + 10)]
-    grown = FeatureTable()
+    grown = FeatureTable(memo=Memo())  # as a value cache's table grows, with the cache's memo
     for f in features[: CHUNK + 3]:
         grown.index(f)
     first = grown.pack()
@@ -130,12 +131,16 @@ def test_a_deeply_nested_or_old_checkpoint_file_gets_one_line(tmp_path):
 def test_a_table_read_back_packs_its_blocks_as_read(monkeypatch):
     """A resumed run's first checkpoint reuses the blocks it read instead of compressing them again;
     a block that grew is packed afresh, and every block unpacks to its features."""
+    from ftorch.checkpoint import Memo
     features = [Texel([float(i + 1)] + [0.25] * 14) for i in range(CHUNK + 5)]
     packed = FeatureTable({f: i for i, f in enumerate(features)}).pack()
-    read = unpack_features(json.loads(json.dumps(packed)))  # new objects, as a resumed run has
+    memo = Memo()  # a value cache's, as a resumed run reads its table into
+    read = unpack_features(json.loads(json.dumps(packed)), memo)  # new objects, as a resumed run has
     compressed = []
     monkeypatch.setattr("ftorch.space.features.encode_text", lambda text: compressed.append(text) or encode_text(text))
-    table = FeatureTable({f: i for i, f in enumerate(read)})
+    assert FeatureTable({f: i for i, f in enumerate(read)}).pack() == packed and len(compressed) == 2  # no memo: all again
+    compressed.clear()
+    table = FeatureTable({f: i for i, f in enumerate(read)}, memo)
     assert table.pack() == packed
     assert compressed == []  # nothing compressed again
     table.index(Texel([0.5] * 15))
@@ -145,9 +150,14 @@ def test_a_table_read_back_packs_its_blocks_as_read(monkeypatch):
 
 
 def test_blocks_are_compressed_once_and_remembered_without_a_copy_of_their_bytes():
-    from ftorch import checkpoint
+    from ftorch.checkpoint import MEMO_SIZE, Memo
     values = np.random.default_rng(2).random((2 * ROWS, 64))
-    first = encode_array(values)
-    again = encode_array(values.copy())
+    memo = Memo()
+    first = encode_array(values, memo=memo)
+    again = encode_array(values.copy(), memo=memo)
     assert all(a is b for a, b in zip(again["blocks"], first["blocks"]))  # the same bytes: compressed once
-    assert all(len(digest) == 32 for digest, _ in checkpoint._blocks)  # a digest, not the block's 512 kB
+    assert not any(a is b for a, b in zip(encode_array(values)["blocks"], first["blocks"]))  # without the memo: anew
+    assert len(memo.arrays) == 2 and all(len(digest) == 32 for digest, _ in memo.arrays)  # a digest, not the 512 kB
+    for n in range(MEMO_SIZE):
+        encode_array(np.full((1, 1), n / MEMO_SIZE), memo=memo)
+    assert len(memo.arrays) == MEMO_SIZE  # bounded: the oldest forgotten

@@ -5,7 +5,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..checkpoint import decode_array, encode_array, stored_position
+from ..checkpoint import Memo, decode_array, encode_array, stored_position
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..tables import GrowingTable
@@ -30,6 +30,7 @@ class ValueCache:
         self.dtype = np.dtype(dtype)
         self._row: dict[Feature, int] = {}
         self._table = GrowingTable(images, dtype=self.dtype)
+        self.memo = Memo()  # the blocks of its checkpoints so far: only the grown ones are compressed again
 
     def __len__(self) -> int:
         return len(self._row)
@@ -82,7 +83,7 @@ class ValueCache:
     def table(self) -> FeatureTable:
         """A feature table that starts with this cache's features at their rows (built without
         hashing them: a checkpoint of many thousand features writes them once, cheaply)."""
-        return FeatureTable(self._row)
+        return FeatureTable(self._row, self.memo)
 
     def state_dict(self, table: FeatureTable | None = None) -> dict:
         """The cache as JSON-ready data: the features, by position in ``table`` (or in a table of
@@ -92,7 +93,7 @@ class ValueCache:
         features = list(self._row)  # in row order: rows are only ever added
         # a table from table() holds them at their rows: compared by identity, nothing hashed
         positions = range(len(features)) if table.features[: len(features)] == features else map(table.index, features)
-        state = {"features": list(positions), "values": encode_array(self._table.array)}
+        state = {"features": list(positions), "values": encode_array(self._table.array, memo=self.memo)}
         if own:
             state["table"] = table.pack()
         return state
@@ -101,7 +102,7 @@ class ValueCache:
         """Restore a cache written by :meth:`state_dict` for the same images (``features``: the
         table it was written against, where the caller kept one)."""
         try:
-            known = unpack_features(state["table"]) if features is None else features
+            known = unpack_features(state["table"], self.memo) if features is None else features
             features = [known[stored_position(i, len(known))] for i in state["features"]]
             values = decode_array(state["values"], shape=(len(features), self.images))
         except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:

@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import json
 import math
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import ClassVar
 
 import torch
 from torch import Tensor
 
-from ..checkpoint import decode_text, encode_text
+from ..checkpoint import Memo, decode_text, encode_text
 from ..errors import InputError
 from .primitives import PartKind
 from .texture import BINS, sigma_level
@@ -336,20 +335,18 @@ class FeatureTable:
 
     :meth:`index` gives a feature's position (adding it if new); :meth:`pack` writes the table as
     compressed JSON blocks of ``CHUNK`` features; :func:`unpack_features` reads it back. A table
-    that grows between checkpoints (the value cache's does) re-packs only its last block: packed
-    blocks are remembered by their features, and so are the blocks read, so that the first
-    checkpoint of a resumed run does not compress its whole table again.
+    that grows between checkpoints (the value cache's does) re-packs only its last block where it
+    is given the grower's ``memo`` (:class:`~ftorch.checkpoint.Memo`): packed blocks are remembered
+    by their features, and so are the blocks read, so that the first checkpoint of a resumed run
+    does not compress its whole table again.
     """
 
-    # the ids of a block's features -> (those features, the packed block), the most recent 256; an
-    # entry keeps its features alive, so their ids cannot be reused while it is remembered
-    _packed: OrderedDict = OrderedDict()
-
-    def __init__(self, positions: dict[Feature, int] | None = None):
+    def __init__(self, positions: dict[Feature, int] | None = None, memo: Memo | None = None):
         """An empty table, or one holding the features of ``positions`` (feature -> 0, 1, 2, ...,
         in order, as a value cache keeps its rows), taken over without hashing them again."""
         self._index: dict[Feature, int] = {} if positions is None else positions.copy()
         self.features: list[Feature] = list(self._index)
+        self.memo = memo
 
     def __len__(self) -> int:
         return len(self.features)
@@ -365,23 +362,18 @@ class FeatureTable:
         blocks = []
         for start in range(0, len(self.features), CHUNK):
             chunk = tuple(self.features[start : start + CHUNK])
-            known = self._packed.get(tuple(map(id, chunk)))
-            block = self._remember(chunk, encode_text("[" + ",".join(f.to_json() for f in chunk) + "]")) \
-                if known is None else known[1]
+            block = None if self.memo is None else self.memo.feature_block(chunk)
+            if block is None:
+                block = encode_text("[" + ",".join(f.to_json() for f in chunk) + "]")
+                if self.memo is not None:
+                    self.memo.remember_features(chunk, block)
             blocks.append(block)
         return {"blocks": blocks}
 
-    @classmethod
-    def _remember(cls, chunk: tuple[Feature, ...], block: dict) -> dict:
-        """Remember ``block`` as the packed form of the features ``chunk``; returns it."""
-        cls._packed[tuple(map(id, chunk))] = (chunk, block)
-        if len(cls._packed) > 256:
-            cls._packed.popitem(last=False)
-        return block
 
-
-def unpack_features(data: dict) -> list[Feature]:
-    """The features of a :meth:`FeatureTable.pack` table; ValueError where it is damaged."""
+def unpack_features(data: dict, memo: Memo | None = None) -> list[Feature]:
+    """The features of a :meth:`FeatureTable.pack` table; ValueError where it is damaged. ``memo``:
+    where the blocks read are remembered as packed already (a resumed run writes them as they are)."""
     if not isinstance(data, dict) or not isinstance(data.get("blocks"), list):
         raise ValueError("damaged feature table (no blocks)")
     features = []
@@ -396,6 +388,7 @@ def unpack_features(data: dict) -> list[Feature]:
             chunk = tuple(Feature.from_dict(d) for d in items)
         except RecursionError:
             raise ValueError("damaged feature table (nested too deeply)") from None
-        FeatureTable._remember(chunk, block)  # a block read is packed already: a resumed run writes it as it is
+        if memo is not None:
+            memo.remember_features(chunk, block)
         features += chunk
     return features
