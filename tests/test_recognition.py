@@ -106,23 +106,28 @@ def test_recognition_follows_networks_that_change_between_calls():
     """The index of the networks is reused while they keep their features: a feature added,
     removed, or a network added or reordered is seen at the next recognition, which then equals
     one by a freshly indexed recognizer."""
-    from ftorch.recognition import inference
+    from ftorch.recognition.inference import Plan
 
     perfect = [[1.0, 0.0], [0.0, 1.0]]
     nets = {"X": network("X", perfect, "x1"), "Y": network("Y", [[0.8, 0.2], [0.3, 0.7]], "y1")}
     values = {"x1": 0.1, "y1": 0.9, "y2": 0.9, "z1": 0.9}
 
+    plans = [None]  # the plan a learner keeps between its recognitions
+
     def both_ways(networks):
-        kept = recognize(networks, values.__getitem__)
-        inference._Plan.last = None
+        plans.append(Plan.of(networks, plans[-1]))
+        kept = recognize(networks, values.__getitem__, plan=plans[-1])
         fresh = recognize(networks, values.__getitem__)
         assert (kept.queried, kept.posteriors, kept.beliefs) == (fresh.queried, fresh.posteriors, fresh.beliefs)
         return kept
 
     assert both_ways(nets).queried == ["x1", "y1"]
+    nets["Y"].set_cpt("y1", np.array([[0.8, 0.2], [0.3, 0.7]]))
+    assert Plan.of(nets, plans[-1]) is plans[-1]  # a new CPT keeps the structure: the plan is reused
     nets["Y"].add_feature("y2", threshold=0.5)
     nets["Y"].set_cpt("y2", np.array(perfect))
     assert both_ways(nets).queried == ["x1", "y2"]  # the perfect new feature settles Y first
+    assert plans[-1] is not plans[-2]  # a new plan for the new structure
     nets["Z"] = network("Z", perfect, "z1")
     assert "z1" in both_ways(nets).queried
     assert both_ways({k: nets[k] for k in ("Z", "Y", "X")}).queried[0] == "z1"  # ties: the first network

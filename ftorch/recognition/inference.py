@@ -89,13 +89,11 @@ class Recognition:
     beliefs: list = field(default_factory=list)
 
 
-class _Plan:
+class Plan:
     """The networks' structure as recognition indexes it: every feature once (``keys``), the
     networks holding each, and each network's slots in the side-by-side information array. It
-    depends only on the networks and their feature tuples (not on CPTs or thresholds), so the last
-    one is kept and reused while those are the same objects (``signature``)."""
-
-    last: "_Plan | None" = None
+    depends only on the networks and their feature tuples (not on CPTs or thresholds), so its owner
+    (a learner, for all its recognitions) reuses it while those are the same objects (``signature``)."""
 
     def __init__(self, networks: dict[Hashable, ClassNetwork], signature: tuple):
         self.signature = signature
@@ -116,23 +114,26 @@ class _Plan:
         for slot, i in enumerate(self.slot_key.tolist()):
             self.slots[i].append(slot)
 
+    @staticmethod
+    def signature(networks: dict[Hashable, ClassNetwork]) -> tuple:
+        return tuple((label, net, net.features) for label, net in networks.items())
+
     @classmethod
-    def of(cls, networks: dict[Hashable, ClassNetwork]) -> "_Plan":
-        signature = tuple((label, net, net.features) for label, net in networks.items())
-        if cls.last is None or cls.last.signature != signature:
-            cls.last = cls(networks, signature)
-        return cls.last
+    def of(cls, networks: dict[Hashable, ClassNetwork], last: "Plan | None" = None) -> "Plan":
+        """The plan of ``networks``: ``last`` where it still fits them, else a new one."""
+        signature = cls.signature(networks)
+        return last if last is not None and last.signature == signature else cls(networks, signature)
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
-              tolerance: float = 1e-12, positive_only: bool = False) -> Recognition:
+              tolerance: float = 1e-12, positive_only: bool = False, plan: Plan | None = None) -> Recognition:
     """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14).
 
-    Features are indexed once per network structure (:class:`_Plan`); each network keeps its
-    evidence as a state array and only the networks that hold the queried feature recompute
-    their informations.
+    Features are indexed once per network structure (:class:`Plan`: ``plan`` where the caller
+    keeps one that still fits the networks, else a new one); each network keeps its evidence as a
+    state array and only the networks that hold the queried feature recompute their informations.
     """
-    plan = _Plan.of(networks)
+    plan = Plan.of(networks, plan)
     labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
     start, slot_key, slots = plan.start, plan.slot_key, plan.slots
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]

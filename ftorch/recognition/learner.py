@@ -74,7 +74,7 @@ from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
-from .inference import Outcome, Recognition, Result, accuracy, outcome, recognize, residual_entropy
+from .inference import Outcome, Plan, Recognition, Result, accuracy, outcome, recognize, residual_entropy
 from .instances import InstanceList, are_stored_values
 from .settings import Evidence, LearnerSettings, bits, whole
 from .stages import MAX_CYCLES, Schedule, Stage
@@ -156,6 +156,7 @@ class DistinctiveFeatureLearner:
         """The state before any presentation: no network, no instance, the generator at ``seed``."""
         self.generator.manual_seed(self.seed)
         self.networks: dict[Hashable, ClassNetwork] = {}
+        self._plan: Plan | None = None  # the networks' structure as alg. 4.4 indexes it, while it lasts
         self.counting = Counting(self.settings.calibrate)
         self.candidates = CandidateGenerator(self.generator, self.settings.primitives)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
@@ -289,10 +290,11 @@ class DistinctiveFeatureLearner:
         features = in_use(self.networks)
         table = env.values(features, images) if features else np.zeros((0, len(images)))
         out = []
+        self._plan = Plan.of(self.networks, self._plan)
         for k in range(len(images)):
             column = dict(zip(features, table[:, k].tolist()))
             out.append(recognize(self.networks, column.__getitem__, max(threshold, 1e-12),
-                                 positive_only=self.settings.evidence is Evidence.POSITIVE))
+                                 positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan))
         return out
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------

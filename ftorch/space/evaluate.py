@@ -87,7 +87,7 @@ class _ReferencePoints:
     def of(records: ImageRecords, kind: PartKind | int) -> "_ReferencePoints":
         """The points of ``kind`` (a part kind, or a texture level) in ``records``, found once per
         records object (records are never changed in place)."""
-        known = records.__dict__.setdefault("_reference_points", {})
+        known = records.reference_points
         if kind not in known:
             if isinstance(kind, PartKind):
                 known[kind] = _ReferencePoints(kind.mask(records), records.x, records.y, records.sigma, records.theta,

@@ -132,6 +132,11 @@ class ImageRecords:
     grid_mask: Tensor
     histograms: Tensor
 
+    def __post_init__(self):
+        # the reference points of each part kind or texture level, found once per records object
+        # by the feature values (ftorch/space/evaluate.py); records are never changed in place
+        self.reference_points: dict = {}
+
     @classmethod
     def build(cls, space: ScaleSpaceOutput, points: Points, texture: tuple[Tensor, ...], into: Pyramid | None = None,
               offset: int = 0) -> "ImageRecords":
