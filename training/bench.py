@@ -11,7 +11,7 @@ Everything is measured in one run against baselines computed in the same run:
 Timings are the best of several repeats after a warm-up.
 
 ``python -m training.bench recognition [--quick] --json PATH`` times the inner loop of alg. 4.4:
-one ``ClassNetwork.infer`` (the posterior and the mutual information of every unobserved
+one ``ExactInference.infer`` (the posterior and the mutual information of every unobserved
 feature: ``evaluate`` without its memory of evidence states, the groups' memories emptied first)
 on networks shaped like learned ones (16 feature nodes: a geometric chain with a conjunction, a
 disjunction, and arc-free nodes), for random evidence. Baselines in the same
@@ -35,7 +35,8 @@ import torch
 from ftorch import FeatureSpace, ScaleSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
-from ftorch.recognition.bayes import ClassNetwork, information
+from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.exact import information
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Conjunction, Disjunction
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
@@ -220,16 +221,16 @@ def _random_cpts(net: ClassNetwork, rng: np.random.Generator) -> ClassNetwork:
 
 def forget_groups(net: ClassNetwork) -> None:
     """Empty every group's memory of its own evidence (compiled tables and einsum contractions)."""
-    for group in net.compiled().groups:
+    for group in net.inference.groups:
         group.given.clear()
         group.contracted.clear()
 
 
 def infer_afresh(net: ClassNetwork, state: np.ndarray) -> tuple[float, np.ndarray]:
-    """``net.infer(state)`` with the groups' memories emptied first (:func:`forget_groups`): the
+    """``net.inference.infer(state)`` with the groups' memories emptied first (:func:`forget_groups`): the
     inference itself, not a lookup (random evidence sets meet most small groups' states again)."""
     forget_groups(net)
-    return net.infer(state)
+    return net.inference.infer(state)
 
 
 def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = False) -> list[tuple[float, np.ndarray]]:
@@ -242,7 +243,7 @@ def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = Fal
         while True:
             if forget:
                 forget_groups(net)
-            posterior, info = net.evaluate(state)
+            posterior, info = net.inference.evaluate(state)
             out.append((posterior, info))
             best = int(np.argmax(np.where(state < 0, info, -1.0)))
             if state[best] >= 0 or not info[best] > 0:
@@ -263,7 +264,7 @@ def memory_section(build, truths: int, repeats: int) -> dict:
                                                  lambda: recognitions(build(), states, forget=True)],
                                                 repeats, torch.device("cpu"))
     difference = max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
-    return {"nodes": len(probe.features), "groups": sorted(len(g.keys) for g in probe.compiled().groups),
+    return {"nodes": len(probe.features), "groups": sorted(len(g.keys) for g in probe.inference.groups),
             "recognitions": truths, "evaluations": len(ours), "seconds": fast, "seconds_without_memory": slow,
             "ratio_vs_without_memory": slow / fast, "max_difference_vs_without_memory": difference}
 

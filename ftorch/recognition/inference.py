@@ -137,7 +137,7 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
     start, slot_key, slots = plan.start, plan.slot_key, plan.slots
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
-    evaluated = [net.evaluate(state) for net, state in zip(nets, states)]
+    evaluated = [net.inference.evaluate(state) for net, state in zip(nets, states)]
     belief = [e[0] for e in evaluated]
     informative = np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0)
     asked = np.zeros(len(slot_key), dtype=bool)
@@ -160,7 +160,7 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
                 continue
             trial = states[n].copy()
             trial[local[n][key]] = int(present)
-            posterior, info = nets[n].evaluate(trial)
+            posterior, info = nets[n].inference.evaluate(trial)
             if posterior == posterior:  # not NaN: the evidence is possible
                 states[n], belief[n] = trial, posterior
                 informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
