@@ -3,7 +3,7 @@ import numpy as np
 import torch
 
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import CandidateGenerator, in_use
+from ftorch.recognition.candidates import CandidateGenerator, Method, in_use
 from ftorch.recognition.environment import ImageSet
 from ftorch.space.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
 from ftorch.space.primitives import PartKind
@@ -24,20 +24,20 @@ def _setting():
 def test_method_1_reuses_only_features_of_unrelated_classes():
     env, networks, texel = _setting()
     generate = CandidateGenerator(torch.Generator().manual_seed(0))
-    made = generate(1, 50, networks, env, 0, 0, frozenset({1}), [])
+    made = generate(Method.REUSE, 50, networks, env, 0, 0, frozenset({1}), [])
     assert len(made) == 50 and set(made) == {texel(4.0)}  # 1.0-3.0 belong to class 0 or 1
-    assert generate(1, 5, networks, env, 0, 0, frozenset({1, 2}), []) == [] and generate.sampled == 0
+    assert generate(Method.REUSE, 5, networks, env, 0, 0, frozenset({1, 2}), []) == [] and generate.sampled == 0
 
 
 def test_methods_2_and_3_sample_from_the_sample_image_and_count_what_they_sample():
     env, networks, texel = _setting()
     generate = CandidateGenerator(torch.Generator().manual_seed(1))
-    primitives = generate(2, 40, networks, env, 3, 0, frozenset({1}), [])
+    primitives = generate(Method.PRIMITIVE, 40, networks, env, 3, 0, frozenset({1}), [])
     kinds = {f.parts[0].kind if isinstance(f, Geometric) else PartKind.TEXEL for f in primitives}
     assert all(isinstance(f, LocalFeature) for f in primitives) and kinds == {PartKind.TEXEL, PartKind.EDGEL}
     assert generate.sampled == len(primitives) > 30
     assert np.allclose(env.values(primitives, [3]), 1.0, atol=1e-5)  # each is found at its own point in image 3
-    expanded = generate(3, 10, networks, env, 3, 0, frozenset({1}), primitives[:2])
+    expanded = generate(Method.EXPANSION, 10, networks, env, 3, 0, frozenset({1}), primitives[:2])
     assert expanded and all(isinstance(f, Geometric) for f in expanded)
     assert generate.sampled == len(primitives) + len(expanded)
 
@@ -46,14 +46,14 @@ def test_methods_4_and_5_combine_two_different_features_in_use_or_failed():
     env, networks, texel = _setting()
     generate = CandidateGenerator(torch.Generator().manual_seed(2))
     pool = set(in_use(networks)) | {texel(9.0)}
-    for method, kind in ((4, Conjunction), (5, Disjunction)):
+    for method, kind in ((Method.CONJUNCTION, Conjunction), (Method.DISJUNCTION, Disjunction)):
         made = generate(method, 30, networks, env, 0, 0, frozenset({1}), [texel(9.0)])
         assert len(made) == 30 and all(isinstance(f, kind) and f.a != f.b and {f.a, f.b} <= pool for f in made)
-    assert generate.sampled == 0 and generate(4, 5, {0: ClassNetwork(0)}, env, 0, 0, frozenset(), []) == []
+    assert generate.sampled == 0 and generate(Method.CONJUNCTION, 5, {0: ClassNetwork(0)}, env, 0, 0, frozenset(), []) == []
 
 
 def test_same_generator_state_same_candidates():
     env, networks, _ = _setting()
     runs = [CandidateGenerator(torch.Generator().manual_seed(3)) for _ in range(2)]
-    first, second = ([g(m, 10, networks, env, 1, 0, frozenset({1}), []) for m in range(1, 6)] for g in runs)
+    first, second = ([g(m, 10, networks, env, 1, 0, frozenset({1}), []) for m in Method] for g in runs)
     assert first == second

@@ -13,7 +13,7 @@ from scipy.ndimage import gaussian_filter1d
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import THESIS_PRIMITIVES, CandidateGenerator, Primitive, primitive_set
+from ftorch.recognition.candidates import THESIS_PRIMITIVES, CandidateGenerator, Method, Primitive, primitive_set
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import accuracy
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -161,7 +161,7 @@ def test_the_thesis_primitives_draw_exactly_as_the_two_kinds_always_did(records)
         def record(self, _):
             return env_records
 
-    made = mine(2, 40, {}, One(), 0, "a", frozenset(), [])
+    made = mine(Method.PRIMITIVE, 40, {}, One(), 0, "a", frozenset(), [])
     expected = [random_texel(env_records, 0, old) if torch.rand(1, generator=old) < 0.5 else random_edgel_pair(env_records, 0, old)
                 for _ in range(40)]
     assert made == [f for f in expected if f is not None]

@@ -24,7 +24,18 @@ from ..space.generate import expand_geometric, random_edgel_pair, random_texel, 
 from .bayes import ClassNetwork
 from .environment import ImageSet
 
-METHODS = (1, 2, 3, 4, 5)
+
+class Method(StrEnum):
+    """Alg. 4.10's five methods of candidate generation, in the order a search tries them."""
+
+    REUSE = "reuse"  # 1: a feature of an unrelated class
+    PRIMITIVE = "primitive"  # 2: a new primitive from the sample image
+    EXPANSION = "expansion"  # 3: a geometric expansion of a local feature
+    CONJUNCTION = "conjunction"  # 4
+    DISJUNCTION = "disjunction"  # 5
+
+
+METHODS = tuple(Method)
 
 
 class Primitive(StrEnum):
@@ -73,18 +84,18 @@ class CandidateGenerator:
         self.primitives = primitive_set(primitives)
         self.sampled = 0
 
-    def __call__(self, method: int, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
+    def __call__(self, method: Method, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
                  char, disc: frozenset, failed: list) -> list:
         """``n`` (n_fgen) candidates of one method for characterizing ``char`` against ``disc`` with
         the sample image ``sample``, drawn together; ``failed``: earlier candidates of this search."""
         generator = self.generator
-        if method == 1:  # reuse a feature of an unrelated class
+        if method is Method.REUSE:  # reuse a feature of an unrelated class
             related = {char, *disc}
             own = {f for c in related if c in networks for f in networks[c].features}
             pool = [f for label, net in networks.items() if label not in related for f in net.features if f not in own]
             pool = list(dict.fromkeys(pool))
             return [pick(pool, generator) for _ in range(n)] if pool else []
-        if method == 2:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
+        if method is Method.PRIMITIVE:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
             record, kinds = env.record(sample), self.primitives
             made = [_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](record, 0, generator)
                     for _ in range(n)]
@@ -92,7 +103,7 @@ class CandidateGenerator:
             self.sampled += len(made)
             return made
         pool = in_use(networks) + failed
-        if method == 3:  # geometric expansion at the strongest occurrence
+        if method is Method.EXPANSION:  # geometric expansion at the strongest occurrence
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
@@ -102,7 +113,7 @@ class CandidateGenerator:
             return made
         if len(pool) < 2:
             return []
-        kind = Conjunction if method == 4 else Disjunction
+        kind = Conjunction if method is Method.CONJUNCTION else Disjunction
         made = []
         for _ in range(n):
             a = pick(pool, generator)
