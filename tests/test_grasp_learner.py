@@ -11,7 +11,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
-from ftorch.grasp.learner import FINGER_CHOICES, Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp.learner import Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp.settings import FingerChoice
 from ftorch.grasp.vonmises import fit_mixture
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Texel
@@ -98,7 +99,7 @@ def clean_pool():
 
 
 def test_learner_predicts_hand_orientation_on_clean_grasps(clean_pool):
-    learner = GraspLearner(math.radians(10), seed=1)
+    learner = GraspLearner.thesis(seed=1)
     fold = GraspFold(1, "clean", clean_pool, 10, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(8)
     assert fold.epochs[-1]["mistakes"] < fold.epochs[0]["mistakes"]
@@ -108,7 +109,7 @@ def test_learner_predicts_hand_orientation_on_clean_grasps(clean_pool):
 
 def test_same_seed_same_features_and_models(clean_pool):
     def train():
-        learner = GraspLearner(math.radians(10), seed=3)
+        learner = GraspLearner.thesis(seed=3)
         GraspFold(2, "clean", clean_pool, 4, FeatureSpace(), learner, HapticController(), seed=0).fit(2)
         return {c: ([f.to_json() for f in s.features], [m.to_dict() if m else None for m in s.models])
                 for c, s in learner.sets.items()}
@@ -117,7 +118,7 @@ def test_same_seed_same_features_and_models(clean_pool):
 
 def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(clean_pool, monkeypatch):
     import ftorch.grasp.learner as grasp
-    learner = GraspLearner(math.radians(10), seed=0)
+    learner = GraspLearner.thesis(seed=0)
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(2)  # F_2 and F_3 now hold features
     calls = []
@@ -151,7 +152,7 @@ def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(cle
 
 
 def test_recommendations_for_a_batch_are_those_for_each_image(clean_pool):
-    learner = GraspLearner(math.radians(10), seed=0)
+    learner = GraspLearner.thesis(seed=0)
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(2)
     keys = [t.key for t in fold.objects]
@@ -196,12 +197,37 @@ def test_grasp_command_writes_report_figures_and_events(tmp_path, capsys):
     events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"scalars": 0, "histograms": 0, "images": 0})
     events.Reload()
     fold = report["folds"][0]
-    assert [e.value for e in events.Scalars("train/mistakes")] == pytest.approx([e["mistakes"] for e in fold["epochs"]])
-    assert events.Scalars("test/poor_cued")[0].value == pytest.approx(fold["poor_grasp_fraction"]["cued"])
-    assert {"test/orientation_error_deg", "test/probes_haptic", "test/probes_cued", "test/mu0_haptic",
-            "test/mu0_cued"} <= set(events.Tags()["histograms"])
-    for tag in ("figures/errors", "figures/grasps", "figures/features"):  # charts by add_figure, features by add_image
-        assert [e.step for e in events.Images(tag)] == [len(fold["epochs"])]
+    steps = [e["epoch"] + 1 for e in fold["epochs"]]
+    assert [e.step for e in events.Scalars("epoch/mistakes")] == steps
+    assert [e.value for e in events.Scalars("epoch/mistakes")] == pytest.approx([e["mistakes"] for e in fold["epochs"]])
+    # per epoch, what the learner predicted before each training grasp (the fold's checkpoint holds it)
+    predictions = json.loads((out / "fold1" / "checkpoint.json").read_text())["state"]["predictions"]
+    assert len(predictions) == len(steps) and all(len(p["error_deg"]) == 12 for p in predictions)  # 4 categories x 3
+    unpredicted = [p["error_deg"].count(None) for p in predictions]
+    assert [e.value for e in events.Scalars("epoch/unpredicted")] == unpredicted and 0 < sum(unpredicted) < 12 * len(steps)
+    predicted = [s for s, n in zip(steps, unpredicted) if n < 12]
+    for tag, key in (("epoch/orientation_error_deg", "error_deg"), ("epoch/mu0_expected", "expected_mu0")):
+        histograms = events.Histograms(tag)
+        assert [h.step for h in histograms] == predicted
+        for h, p in zip(histograms, (p for p, n in zip(predictions, unpredicted) if n < 12)):
+            values = [v for v in p[key] if v is not None]  # the grasps without a prediction are left out
+            assert (h.histogram_value.num, h.histogram_value.min, h.histogram_value.max) == pytest.approx(
+                (len(values), min(values), max(values)))
+    assert [h.step for h in events.Histograms("epoch/mu0_measured")] == predicted
+    assert {h.step for h in events.Histograms("epoch/fingers_chosen")} <= set(steps)
+    assert events.Histograms("epoch/fingers_chosen")[-1].histogram_value.min >= 2
+    assert events.Scalars("fold/poor_cued")[0].value == pytest.approx(fold["poor_grasp_fraction"]["cued"])
+    assert events.Scalars("fold/unpredicted")[0].value == fold["orientation_error_deg"]["unpredicted"]
+    errors = events.Histograms("fold/orientation_error_deg")[0].histogram_value
+    assert errors.num == fold["orientation_error_deg"]["n"] - fold["orientation_error_deg"]["unpredicted"]
+    assert errors.max < 180 or 180.0 in fold["tests"]["orientation_errors_deg"]  # no 180-degree stand-ins
+    for side in ("haptic", "cued"):
+        unbounded = [g["mu0"] for g in fold["tests"][side]].count(None)
+        assert events.Scalars(f"fold/no_equilibrium_{side}")[0].value == unbounded
+        assert events.Histograms(f"fold/mu0_{side}")[0].histogram_value.num == len(fold["tests"][side]) - unbounded
+        assert events.Histograms(f"fold/probes_{side}")[0].step == len(steps)
+    for tag in ("fold/figure_errors", "fold/figure_grasps", "fold/figure_features"):  # charts by add_figure, features by add_image
+        assert [e.step for e in events.Images(tag)] == [len(steps)]
     assert run.main(argv[:-2] + ["--best", "5", "--out", str(out)]) == 2
     assert "--best 5" in capsys.readouterr().err
 
@@ -270,7 +296,7 @@ def _two_kind_set(rng, fingers, n=40):
 
 def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds():
     rng = np.random.default_rng(4)
-    learner = {choice: GraspLearner(finger_choice=choice, mu0_split=0.4) for choice in FINGER_CHOICES}
+    learner = {choice: GraspLearner(finger_choice=choice, mu0_split=0.4) for choice in FingerChoice}
     for chooser in learner.values():
         for c in (2, 3):
             s = chooser.sets[c] = _two_kind_set(rng, c)
@@ -291,7 +317,7 @@ def test_quality_splits_choose_fingers_where_every_feature_fires_on_both_kinds()
     pooled = {c: s.pooled_mu0(s.present(triangle, np.zeros_like(triangle)))[0] for c, s in learner["pooled"].sets.items()}
     assert abs(pooled[2] - pooled[3]) < 0.05  # the failure: pooled, both sets expect the same, a coin flip
     with pytest.raises(InputError, match="needs mu0_split"):
-        GraspLearner(finger_choice="quality")
+        GraspLearner(finger_choice="quality", mu0_split=None)
 
 
 def test_a_quality_mistake_is_learned_from():
@@ -318,7 +344,7 @@ def test_a_perfect_feature_not_found_in_the_image_is_absent():
     """A feature with no false prediction has alpha_f = -inf; where it finds no point (value 0, no
     orientation) it must not be present: it once gave 30 of 80 test grasps of seed 6 a NaN orientation."""
     mix = fit_mixture(np.array([0.1, 0.12, 0.11]))
-    for choice in FINGER_CHOICES:
+    for choice in FingerChoice:
         learner = GraspLearner(finger_choice=choice, mu0_split=0.4 if choice == "quality" else None)
         for c, s in learner.sets.items():
             s.features = [Texel([float(c)] + [0.0] * 14)]
@@ -334,7 +360,7 @@ def test_a_saved_grasp_learner_recommends_as_before_and_refuses_to_learn(clean_p
     from ftorch import NotFittedError
     from ftorch.grasp.learner import Experience
 
-    learner = GraspLearner(math.radians(10), seed=0, finger_choice="quality", mu0_split=0.3)
+    learner = GraspLearner(seed=0, mu0_split=0.3)
     with pytest.raises(NotFittedError, match="no feature model yet"):
         learner.save(tmp_path / "grasp.json")
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)

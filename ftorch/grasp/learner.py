@@ -16,10 +16,12 @@ Decisions the text leaves open:
   empty distribution's cdf is 1 everywhere); it needs ``min_points`` correct ones to be usable.
 - Eq. 6.8 weights each instance above alpha_f by the model's density at its offset; mu_0 is
   capped at ``MU0_CAP`` (an infinite mu_0, no equilibrium, would swamp the average).
+- The settings are one :class:`~ftorch.grasp.settings.GraspSettings`; its defaults are the measured
+  best ("quality" below), :meth:`GraspLearner.thesis` gives the dissertation's alg. 6.2.
 - Unused features (never f*_c, nor the feature behind the quality split of step 2b, in the last
   ``discard_every`` grasps of their set, and at least that old) are discarded after every
   ``discard_every`` grasps.
-- Step 2b's finger choice (``finger_choice``). "thesis": compare E[mu_0] of f*_2 and f*_3, the
+- Step 2b's finger choice (``finger_choice``, a :class:`FingerChoice`). "thesis": compare E[mu_0] of f*_2 and f*_3, the
   features chosen for their orientation power (KSD_f). "pooled" (beyond chapter 6): compare, per
   set, the mean of eq. 6.8 over *all* features present in the image, each weighted by its support
   (the instances above alpha_f its model was fitted on). The orientation still comes from f*_c.
@@ -29,7 +31,7 @@ Decisions the text leaves open:
   E[mu_0] = .49 made 28 of 80 held-out squares take three fingers. Pooling over the present
   features, with their support, chose right for 73 of 80 squares (thesis rule 52, every triangle
   right under both).
-  "quality" (beyond chapter 6; the default of ``grasp``): over seeds 100-104 pooling still failed
+  "quality" (beyond chapter 6; the default): over seeds 100-104 pooling still failed
   (reductions of poor grasps 79, 36, 41, 8 and 82 %): in seed 102 every training category's mu_0 lies
   in its own narrow band (good .01-.05, poor .42-.57), so choosing the finger count is telling the
   object kinds apart, yet nearly every modelled feature is present (above its orientation alpha_f)
@@ -49,7 +51,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple, Sequence
+from enum import StrEnum
+from typing import Callable, Hashable, NamedTuple, Sequence
 
 import numpy as np
 import torch
@@ -60,15 +63,22 @@ from ..ksd import ksd
 from ..space.evaluate import feature_values
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.generate import expand_geometric, random_edgel_pair
-from ..space.record import ImageRecords
+from ..space.record import FeatureSpace, ImageRecords
 from ..tables import GrowingTable
+from .settings import MU0_CAP, FingerChoice, GraspSettings
 from .vonmises import VonMisesMixture, fit_mixtures
 
-MU0_CAP = 2.0
 KIND = "grasp-learner"
-SETTINGS = ("t_dtheta", "max_k", "min_points", "discard_every", "max_distance", "finger_choice", "mu0_split")
 FINGERS = (2, 3)
-FINGER_CHOICES = ("thesis", "pooled", "quality")  # alg. 6.2 step 2b: see the module doc
+GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
+
+
+class Learned(StrEnum):
+    """What :meth:`GraspLearner.learn` did with a grasp (alg. 6.2 steps 6-10)."""
+
+    CORRECT = "correct"  # step 6: the prediction was right
+    REFIT = "refit"  # step 9: right after the models were refitted (step 7)
+    SAMPLED = "sampled"  # step 10: still wrong, new features sampled from the image
 
 
 def angular_error(predicted, actual, period) -> np.ndarray:
@@ -111,16 +121,23 @@ class FeatureModel:
     support: int  # instances above alpha_f that eq. 6.4 and 6.8 were fitted on
     rows: np.ndarray | None = field(default=None, repr=False, compare=False)  # those instances' rows
 
-    def to_dict(self) -> dict:
-        return {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
-                "expected_mu0": self.expected_mu0, "support": self.support}
+    def to_dict(self, rows: bool = False) -> dict:
+        """JSON-ready; with ``rows``, the instance rows it was fitted on (which learning compares)."""
+        out = {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
+               "expected_mu0": self.expected_mu0, "support": self.support}
+        return {**out, "rows": self.rows.tolist()} if rows else out
 
     @classmethod
-    def from_dict(cls, data: dict) -> "FeatureModel":
-        """A model written by :meth:`to_dict` (without the instance rows it was fitted on)."""
+    def from_dict(cls, data: dict, instances: int | None = None) -> "FeatureModel":
+        """A model written by :meth:`to_dict`; its rows, where written, are positions among ``instances``."""
         numbers = [float(data[k]) for k in ("ksd", "alpha", "offset", "expected_mu0")]
+        rows = None
+        if "rows" in data:
+            rows = np.array([stored_position(i, instances or 0) for i in data["rows"]], dtype=np.int64)
+            if len(rows) != int(data["support"]):
+                raise ValueError(f"a model fitted on {data['support']} instances lists {len(rows)} rows")
         return cls(numbers[0], numbers[1], VonMisesMixture.from_dict(data["mixture"]), numbers[2], numbers[3],
-                   int(data["support"]))
+                   int(data["support"]), rows)
 
 
 class GraspFeatureSet:
@@ -158,13 +175,72 @@ class GraspFeatureSet:
         feature_set.features = list(features)
         feature_set.models, feature_set.born, feature_set.used = [None] * width, [0] * width, [-1] * width
         feature_set.quality = np.zeros((4, width))
-        feature_set.images = list(range(n))
-        feature_set._values.add_columns(np.zeros((0, width)))
-        feature_set._thetas.add_columns(np.zeros((0, width)))
-        feature_set._values.add_rows(values)
-        feature_set._thetas.add_rows(thetas)
-        feature_set._outcomes.add_rows(np.stack([theta_H, np.minimum(mu0, MU0_CAP), period], 1))
+        feature_set._fill(list(range(n)), values, thetas, np.stack([theta_H, np.minimum(mu0, MU0_CAP), period], 1))
         return feature_set
+
+    def _fill(self, images: list, values: np.ndarray, thetas: np.ndarray, outcomes: np.ndarray) -> None:
+        """The instance list of an empty set: ``images`` and their rows (values and thetas (n, F), outcomes (n, 3))."""
+        self.images, self._seen = list(images), set(images)
+        for table, rows in ((self._values, values), (self._thetas, thetas)):
+            table.add_columns(np.zeros((0, np.shape(rows)[1])))
+            table.add_rows(rows)
+        self._outcomes.add_rows(outcomes)
+
+    def state_dict(self, table: FeatureTable, training: bool = True) -> dict:
+        """JSON-ready: the features (positions in ``table``), their models (alg. 6.1) and quality splits; with
+        ``training``, all that learning reads too: the instance list (each row's image name, values,
+        orientations and outcome; the rows of each image's records), the models' rows, the features'
+        birth and last use, and the grasp and sampling counts."""
+        state = {"fingers": self.fingers, "features": [table.index(f) for f in self.features],
+                 "models": [None if m is None else m.to_dict(rows=training) for m in self.models],
+                 "quality": encode_array(np.ascontiguousarray(self.quality, dtype=np.float64))}
+        if training:
+            state.update({"images": [_name_to_json(i) for i in self.images], "values": encode_array(self.values),
+                          "thetas": encode_array(self.thetas), "outcomes": encode_array(self._outcomes.array),
+                          "source_of_row": list(self._source_of_row), "first_row": list(self._first_row),
+                          "born": list(self.born), "used": list(self.used), "grasps": self.grasps, "sampled": self.sampled})
+        return state
+
+    def load_state_dict(self, state: dict, features: list[Feature],
+                        records: Callable[[Hashable], ImageRecords] | None = None) -> None:
+        """Restore an empty set from :meth:`state_dict` (``features``: the unpacked table). A training state
+        needs ``records``, which gives the records of the image named by the first row of each source;
+        ValueError (or another of ``DAMAGED``) for a damaged state."""
+        chosen = [features[stored_position(i, len(features))] for i in state["features"]]
+        width, training = len(chosen), "images" in state
+        n = len(state["images"]) if training else 0
+        models = [None if m is None else FeatureModel.from_dict(m, n if training else None) for m in state["models"]]
+        if len(models) != width:
+            raise ValueError(f"{width} features but {len(models)} models")
+        self.features, self.models = chosen, models
+        self.quality = decode_array(state["quality"], shape=(4, width))
+        if not training:
+            self.born, self.used = [0] * width, [0] * width
+            return
+        if records is None:
+            raise ValueError("a training state needs the records of its images")
+        images = [_name_from_json(i) for i in state["images"]]
+        if len(set(images)) != n:
+            raise ValueError("an image name occurs twice in the instance list")
+        first = [stored_position(r, n) for r in state["first_row"]]
+        rows = [stored_position(s, len(first)) for s in state["source_of_row"]]
+        if len(rows) != n or any(rows[r] != s for s, r in enumerate(first)) or first != sorted(set(first)):
+            raise ValueError("the rows' sources do not match the sources' first rows")
+        counts = [state[k] for k in ("grasps", "sampled")] + list(state["born"]) + list(state["used"])
+        if len(state["born"]) != width or len(state["used"]) != width or \
+                any(isinstance(v, bool) or not isinstance(v, int) or v < -1 for v in counts):
+            raise ValueError("born, used, grasps and sampled must be integers, one born and used per feature")
+        self._fill(images, *(decode_array(state[k], shape=shape) for k, shape in
+                             (("values", (n, width)), ("thetas", (n, width)), ("outcomes", (n, 3)))))
+        self._source_of_row, self._first_row = rows, first
+        for source, row in enumerate(first):
+            found = records(images[row])
+            if not isinstance(found, ImageRecords) or len(found) != 1:
+                raise ValueError(f"no records of one image for {images[row]!r}")
+            self._source_index[id(found)] = source
+            self._sources.append(found)
+        self.born, self.used = list(state["born"]), list(state["used"])
+        self.grasps, self.sampled = state["grasps"], state["sampled"]
 
     @staticmethod
     def _read_only(array: np.ndarray) -> np.ndarray:
@@ -374,73 +450,153 @@ class GraspFeatureSet:
             self.models[j] = FeatureModel(float(power[i]), float(alpha[i]), mix, offset, expected, len(points), points)
 
 
+def _name_to_json(name):
+    """An image name of the instance list as JSON (a tuple as a list); InputError for other than
+    strings, numbers, None and tuples of them."""
+    if isinstance(name, tuple):
+        return [_name_to_json(part) for part in name]
+    if name is None or isinstance(name, (str, int, float)):
+        return name
+    raise InputError(f"image name {name!r}: a training state holds names that are strings, numbers or tuples of them")
+
+
+def _name_from_json(name):
+    """Inverse of :func:`_name_to_json`."""
+    return tuple(_name_from_json(part) for part in name) if isinstance(name, list) else name
+
+
 class GraspLearner:
     """Alg. 6.2: recommends finger count and hand orientation, learns from every grasp's outcome.
 
-    ``t_dtheta`` (radians) divides correct from false predictions (6.4.2); ``max_k`` bounds the
-    mixtures' components; ``discard_every`` is the discarding period in grasps of a set;
-    ``max_distance`` bounds the edgel pairs sampled (pixels, default a quarter image side).
-    ``finger_choice`` is step 2b's rule (module doc). ``mu0_split`` (None: the thesis, which learns
-    from orientation mistakes only) makes a grasp whose E[mu_0] (as step 2b computes it) lies on the
-    other side of the split than its measured mu_0 a mistake too (module doc, "quality mistakes").
-    Every random choice comes from ``seed``.
+    ``settings`` (:class:`GraspSettings`, default the measured best), changed by ``options``;
+    :meth:`thesis` gives the dissertation's. Every random choice comes from ``seed``; ``device`` is
+    where :meth:`fit`, :meth:`predict` and :meth:`score` compute the records of their images (records
+    given to :meth:`recommend` and :meth:`learn` are measured on their own device).
+
+    The estimator face maps onto alg. 6.2 as far as it goes: :meth:`fit` runs steps 2-10 over past
+    grasps (images with the haptic system's :class:`Experience`), :meth:`predict` is steps 2-4,
+    :meth:`score` step 6's test. There is no ``partial_fit`` over anonymous images: alg. 6.2 keeps one
+    instance per distinct image, so the incremental face is :meth:`learn`, which takes the image's
+    name; and no ``predict_proba``: a recommendation is an orientation and a finger count, not a class.
     """
 
-    def __init__(self, t_dtheta: float = math.radians(10), max_k: int = 4, min_points: int = 3,
-                 discard_every: int = 40, max_distance: float | None = None, seed: int = 0,
-                 finger_choice: str = "thesis", mu0_split: float | None = None):
-        if not 0 < t_dtheta < math.pi:
-            raise InputError(f"t_dtheta must lie in (0, pi) radians, got {t_dtheta}")
-        if finger_choice not in FINGER_CHOICES:
-            raise InputError(f"finger_choice {finger_choice!r}: expected one of {', '.join(FINGER_CHOICES)}")
-        if mu0_split is not None and not 0 < mu0_split < MU0_CAP:
-            raise InputError(f"mu0_split must lie in (0, {MU0_CAP}), got {mu0_split}")
-        if finger_choice == "quality" and mu0_split is None:
-            raise InputError("finger_choice 'quality' needs mu0_split, the mu_0 that divides good from poor grasps")
-        self.finger_choice, self.mu0_split = finger_choice, mu0_split
-        if max_k < 1 or min_points < 1 or discard_every < 1:
-            raise InputError("max_k, min_points and discard_every must be at least 1")
-        self.t_dtheta, self.max_k, self.min_points = t_dtheta, max_k, min_points
-        self.discard_every, self.max_distance = discard_every, max_distance
-        self.sets = {c: GraspFeatureSet(c) for c in FINGERS}
-        self.generator = torch.Generator().manual_seed(seed)
-        self.trainable = True  # False once loaded: the images of past grasps are not saved
+    def __init__(self, settings: GraspSettings | None = None, *, seed: int = 0, device: str | torch.device = "cpu",
+                 **options):
+        self.settings = (GraspSettings() if settings is None else settings).replace(**options)
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise InputError(f"seed must be an integer of at least 0, got {seed!r}")
+        self.seed, self.device = int(seed), torch.device(device)
+        self.generator = torch.Generator()
+        self._blank()
 
-    # -- state -----------------------------------------------------------------------------------
-    def save(self, path) -> None:
-        """Write what recommending needs (JSON, atomically): the settings and, per finger count, the
-        features, their models (alg. 6.1) and quality splits. The instance lists are not written: new
-        features are measured on the images of past grasps, which a file does not hold, so a loaded
-        learner recommends but does not learn. NotFittedError before any feature has a model."""
-        if not any(m is not None for s in self.sets.values() for m in s.models):
-            raise NotFittedError("this GraspLearner has no feature model yet: learn from some grasps first")
-        table = FeatureTable()
-        sets = [{"fingers": c, "features": [table.index(f) for f in s.features],
-                 "models": [None if m is None else m.to_dict() for m in s.models],
-                 "quality": encode_array(np.ascontiguousarray(s.quality, dtype=np.float64))}
-                for c, s in self.sets.items()]
-        save_checkpoint(path, KIND, {"settings": {k: getattr(self, k) for k in SETTINGS}, "sets": sets,
-                                     "features": table.pack()})
+    def _blank(self) -> None:
+        """The state before any grasp: empty sets, the generator at ``seed``."""
+        self.sets = {c: GraspFeatureSet(c) for c in FINGERS}
+        self.generator.manual_seed(self.seed)
+        self.trainable = True  # False once loaded from a file without the past grasps' images
 
     @classmethod
-    def load(cls, path) -> "GraspLearner":
+    def thesis(cls, *, seed: int = 0, device: str | torch.device = "cpu", **options) -> "GraspLearner":
+        """A learner with the dissertation's settings (:meth:`GraspSettings.thesis`), changed by ``options``."""
+        return cls(GraspSettings.thesis(), seed=seed, device=device, **options)
+
+    def __getattr__(self, name: str):
+        """Each setting reads as an attribute too (``learner.min_points``)."""
+        if name in GraspSettings.names() and "settings" in self.__dict__:
+            return getattr(self.settings, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    # -- estimator face ---------------------------------------------------------------------------
+    def _records(self, images) -> ImageRecords:
+        return FeatureSpace().to(self.device).records(images)
+
+    def fit(self, images, experiences: Sequence[Experience], epochs: int = 1) -> "GraspLearner":
+        """Alg. 6.2 from scratch over past grasps: ``images`` (files, arrays or tensors) with what the haptic
+        system reported for each, presented in their order (image i named i) for up to ``epochs`` passes,
+        fewer where a pass makes no mistake."""
+        if len(images) != len(experiences):
+            raise InputError(f"fit: {len(images)} images but {len(experiences)} experiences")
+        epochs = int(epochs)
+        if epochs < 1:
+            raise InputError(f"epochs must be at least 1, got {epochs}")
+        records = self._records(images)
+        self._blank()
+        for _ in range(epochs):
+            learned = [self.learn(i, records[i], experience) for i, experience in enumerate(experiences)]
+            if all(result is Learned.CORRECT for result in learned):
+                break
+        return self
+
+    def _fitted(self) -> None:
+        if not any(m is not None for s in self.sets.values() for m in s.models):
+            raise NotFittedError("this GraspLearner has no feature model yet: learn from some grasps first")
+
+    def predict(self, images, fingers: Sequence[int | None] | None = None) -> list[Recommendation | None]:
+        """Steps 2-4 for each image (:meth:`recommend_all`); NotFittedError before any feature has a model."""
+        self._fitted()
+        return self.recommend_all(self._records(images), fingers)
+
+    def score(self, images, experiences: Sequence[Experience]) -> float:
+        """The fraction of grasps whose recommendation, with the finger count each was grasped with, passes
+        step 6's test (orientation within t_dtheta; with ``mu0_split``, E[mu_0] on the grasp's side of it)."""
+        self._fitted()
+        if len(images) != len(experiences):
+            raise InputError(f"score: {len(images)} images but {len(experiences)} experiences")
+        cues = self.recommend_all(self._records(images), [e.fingers for e in experiences])
+        return float(np.mean([self._correct(cue, e) for cue, e in zip(cues, experiences)]))
+
+    # -- state -----------------------------------------------------------------------------------
+    def state_dict(self, training: bool = True) -> dict:
+        """JSON-ready: the settings and, per finger count, the features, their models (alg. 6.1) and quality
+        splits; with ``training``, all that learning reads too (:meth:`GraspFeatureSet.state_dict`), the
+        seed and the generator's state, so that a learner restored by :meth:`load_state_dict` learns on
+        exactly as this one would (the images themselves are not held: the caller gives their records)."""
+        if training and not self.trainable:
+            raise InputError("this grasp learner was loaded without its past grasps: it has no training state")
+        table = FeatureTable()
+        sets = [s.state_dict(table, training) for s in self.sets.values()]
+        state = {"settings": self.settings.to_dict(), "sets": sets, "features": table.pack()}
+        if training:
+            generator = self.generator.get_state().numpy().astype(np.float64)
+            state.update({"seed": self.seed, "generator": encode_array(generator)})
+        return state
+
+    def load_state_dict(self, state: dict, records: Callable[[Hashable], ImageRecords] | None = None) -> None:
+        """Restore :meth:`state_dict` into this learner (its settings are read from the state). A training
+        state needs ``records``: the records of an image of the instance list, by its name. ValueError
+        (or another of ``ftorch.checkpoint.DAMAGED``) for a damaged state."""
+        self.settings = GraspSettings(**state["settings"])
+        training = "generator" in state
+        if training:
+            self.seed = int(state["seed"])
+        self._blank()
+        features = unpack_features(state["features"])
+        if sorted(r["fingers"] for r in state["sets"]) != list(FINGERS):
+            raise ValueError(f"sets {[r['fingers'] for r in state['sets']]}, expected one for each of {FINGERS}")
+        for record in state["sets"]:
+            self.sets[record["fingers"]].load_state_dict(record, features, records if training else None)
+        if training:
+            generator = decode_array(state["generator"], shape=GENERATOR_STATE)
+            self.generator.set_state(torch.from_numpy(generator.astype(np.uint8)))
+        self.trainable = training
+
+    def save(self, path) -> None:
+        """Write what recommending needs (JSON, atomically): :meth:`state_dict` without training. The
+        instance lists are not written: new features are measured on the images of past grasps, which a
+        file does not hold, so a loaded learner recommends but does not learn. NotFittedError before any
+        feature has a model."""
+        self._fitted()
+        save_checkpoint(path, KIND, self.state_dict(training=False))
+
+    @classmethod
+    def load(cls, path, device: str | torch.device = "cpu") -> "GraspLearner":
         """Read a learner written by :meth:`save`; one InputError for a damaged or foreign file."""
         data = load_checkpoint(path, KIND)
+        learner = cls(device=device)
         try:
-            learner = cls(**data["settings"])
-            features = unpack_features(data["features"])
-            for record in data["sets"]:
-                feature_set = learner.sets[record["fingers"]]
-                chosen = [features[stored_position(i, len(features))] for i in record["features"]]
-                models = [None if m is None else FeatureModel.from_dict(m) for m in record["models"]]
-                quality = decode_array(record["quality"], shape=(4, len(chosen)))
-                if len(models) != len(chosen):
-                    raise ValueError(f"{len(chosen)} features but {len(models)} models")
-                feature_set.features, feature_set.models, feature_set.quality = chosen, models, quality
-                feature_set.born, feature_set.used = [0] * len(chosen), [0] * len(chosen)
+            learner.load_state_dict({k: data[k] for k in ("settings", "sets", "features")})
         except DAMAGED as err:
             raise InputError(f"{path}: damaged grasp learner ({type(err).__name__}: {err})") from None
-        learner.trainable = False
         return learner
 
     def _candidates(self, records: ImageRecords, fingers: int | None) -> list[int]:
@@ -499,11 +655,11 @@ class GraspLearner:
         ``finger_choice`` ("quality" falls back on "pooled" where no quality split is measured)."""
         present = feature_set.present(values, thetas)
         chosen, behind = feature_set.choose(present), np.full(len(values), -1)
-        if self.finger_choice == "thesis":
+        if self.settings.finger_choice is FingerChoice.THESIS:
             expected = feature_set._model_arrays()[2][chosen] if len(feature_set) else np.zeros(len(values))
         else:
             expected = feature_set.pooled_mu0(present)
-            if self.finger_choice == "quality":
+            if self.settings.finger_choice is FingerChoice.QUALITY:
                 quality, behind = feature_set.quality_mu0(values)
                 expected = np.where(np.isfinite(quality), quality, expected)
         return chosen, behind, expected
@@ -513,10 +669,9 @@ class GraspLearner:
         model = self.sets[c].models[j]
         return Recommendation(c, float(thetas[i, j] + model.offset), self.sets[c].features[j], model.ksd, float(expected[i]))
 
-    def learn(self, image, records: ImageRecords, experience: Experience) -> str:
+    def learn(self, image: Hashable, records: ImageRecords, experience: Experience) -> Learned:
         """Steps 5-10 after a grasp with ``experience.fingers`` fingers of the image ``records``
-        (``image`` names it in the instance list). Returns 'correct', 'refit' (right after step 7)
-        or 'sampled' (step 10)."""
+        (``image`` names it in the instance list: an image learned from again adds no row)."""
         if not self.trainable:
             raise InputError("this grasp learner was loaded from a file, which holds no images of past grasps: "
                              "it recommends but cannot learn")
@@ -527,8 +682,8 @@ class GraspLearner:
         feature_set.add_instance(image, records, values, thetas, experience)
         feature_set.grasps += 1
         outcome = self._after(feature_set, records, values, thetas, before, experience)
-        if feature_set.grasps % self.discard_every == 0:
-            feature_set.discard(self.discard_every)
+        if feature_set.grasps % self.settings.discard_every == 0:
+            feature_set.discard(self.settings.discard_every)
         return outcome
 
     def _correct(self, recommendation: Recommendation | None, experience: Experience) -> bool:
@@ -536,21 +691,22 @@ class GraspLearner:
         that the grasp's mu_0 fell)."""
         if recommendation is None:
             return False
-        if self.mu0_split is not None and (recommendation.expected_mu0 > self.mu0_split) != (experience.mu0 > self.mu0_split):
+        split = self.settings.mu0_split
+        if split is not None and (recommendation.expected_mu0 > split) != (experience.mu0 > split):
             return False
-        return bool(angular_error(recommendation.theta_h, experience.theta_H, experience.period) < self.t_dtheta)
+        return bool(angular_error(recommendation.theta_h, experience.theta_H, experience.period) < self.settings.t_dtheta)
 
-    def _after(self, feature_set, records, values, thetas, before, experience) -> str:
+    def _after(self, feature_set, records, values, thetas, before, experience) -> Learned:
         if self._correct(before, experience):
-            return "correct"
-        feature_set.fit(self.t_dtheta, self.max_k, self.min_points)
-        if self.finger_choice == "quality":
-            feature_set.fit_quality(self.mu0_split, self.min_points)
+            return Learned.CORRECT
+        feature_set.fit(self.settings.t_dtheta, self.settings.max_k, self.settings.min_points)
+        if self.settings.finger_choice is FingerChoice.QUALITY:
+            feature_set.fit_quality(self.settings.mu0_split, self.settings.min_points)
         if self._correct(self._predict(feature_set.fingers, values, thetas, use=True), experience):
-            return "refit"
-        new = [random_edgel_pair(records, 0, self.generator, self.max_distance)]
+            return Learned.REFIT
+        new = [random_edgel_pair(records, 0, self.generator, self.settings.max_distance)]
         if feature_set.features:
             pick = int(torch.randint(len(feature_set), (1,), generator=self.generator))
-            new.append(expand_geometric(feature_set.features[pick], records, 0, self.generator, self.max_distance))
+            new.append(expand_geometric(feature_set.features[pick], records, 0, self.generator, self.settings.max_distance))
         feature_set.add_features(new)
-        return "sampled"
+        return Learned.SAMPLED

@@ -1,29 +1,47 @@
-"""``python -m training.run grasp``: the chapter 6 experiments with reports, figures and TensorBoard logs."""
+"""``python -m training.run grasp``: the chapter 6 experiments with reports, figures and TensorBoard logs.
+
+Each fold writes its checkpoint (OUT/foldK/checkpoint.json, OUT/foldK-online/... with ``--online``)
+after every epoch and once it has ended, so ``--resume`` continues an interrupted run from the last
+finished epoch of each fold to the same report.json (seconds aside): a fold that had ended gives its
+stored report entry, one that had not trains on from its last epoch (training/grasping/experiment.py
+says why that is exact). A fold's TensorBoard run is written when the fold ends (a resumed fold that
+had not ended replaces what an interrupted write may have left); per epoch it holds what the learner
+predicted before each training grasp's outcome (``epoch/...``, step: the epoch, 1 first), per fold the
+tests (``fold/...``, step: the epochs trained). Grasps without a prediction are counted
+(``epoch/unpredicted``, ``fold/unpredicted``), not drawn into the histograms; so are grasps without
+equilibrium (an infinite mu_0, ``.../no_equilibrium...``).
+"""
 from __future__ import annotations
 
 import argparse
 import math
 import time
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ftorch import FeatureSpace
+from ftorch.checkpoint import DAMAGED, load_checkpoint, save_checkpoint
 from ftorch.errors import InputError
-from ftorch.grasp.learner import FINGER_CHOICES, MU0_CAP, GraspLearner
+from ftorch.grasp.learner import GraspLearner
+from ftorch.grasp.settings import MU0_CAP, FingerChoice, GraspSettings
 from ftorch.space.draw import draw_features, grid, save_rgb, titled
 from training.cli.arguments import MAX_SEED, at_least, number, seed
 from training.cli.devices import machine, resolve_device
-from training.cli.outputs import RunFolder
+from training.cli.outputs import EVENTS, RunFolder
 from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
 from training.plots import figure_rgb
 from training.recognition.report import write_json
 
-from .experiment import EXPERIMENTS, POOR_MU0, GraspFold, simulate_pool
+from .experiment import EXPERIMENTS, GraspFold, simulate_pool
 from .figures import error_figure, grasp_figure, reduction_figure
 from .haptics import HapticController
-from .report import UNPREDICTED_DEG, grasp_columns, results, seed_study, write_markdown
+from .report import grasp_columns, results, seed_study, write_markdown
+
+FOLD_KIND = "grasp-fold"
+OPTIONS = ("t_dtheta", "finger_choice", "mu0_split")  # the learner's settings on the command line and in the report
 
 
 def _check(args) -> None:
@@ -37,15 +55,18 @@ def _check(args) -> None:
         raise InputError(f"--size {args.size}: expected at least 32 pixels")
     if not 0 < args.t_dtheta < 180:
         raise InputError(f"--t-dtheta {args.t_dtheta}: expected degrees in (0, 180)")
-    if not 0 < args.mu0_split < MU0_CAP:
-        raise InputError(f"--mu0-split {args.mu0_split}: expected a friction coefficient in (0, {MU0_CAP})")
     if args.folds not in (1, 2):
         raise InputError(f"--folds {args.folds}: expected 1 or 2")
+    learner_settings(args)
 
 
-def _split(args) -> float | None:
-    """The learner's mu0_split: only the quality choice uses one (thesis and pooled are as they were)."""
-    return args.mu0_split if args.finger_choice == "quality" else None
+def learner_settings(args) -> GraspSettings:
+    """The learner's settings from the command line (``--t-dtheta`` in degrees; InputError for a value out
+    of range). ``--mu0-split`` serves ``--finger-choice quality`` only: thesis and pooled learn from
+    orientation mistakes alone, as the thesis does."""
+    settings = GraspSettings(t_dtheta=math.radians(args.t_dtheta), finger_choice=args.finger_choice,
+                             mu0_split=args.mu0_split)
+    return settings if settings.finger_choice is FingerChoice.QUALITY else settings.replace(mu0_split=None)
 
 
 def _quality(split: np.ndarray) -> dict | None:
@@ -57,38 +78,67 @@ def _quality(split: np.ndarray) -> dict | None:
 def config(args, device) -> dict:
     return {"experiment": args.experiment, "seed": args.seed, "pool": args.pool, "best": args.best, "epochs": args.epochs,
             "size": args.size, "t_dtheta_deg": args.t_dtheta, "folds": args.folds, "online": args.online,
-            "finger_choice": args.finger_choice, "mu0_split": _split(args),
+            "finger_choice": args.finger_choice, "mu0_split": learner_settings(args).mu0_split,
             "device": str(device)}
 
 
-def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict) -> None:
-    """Per-epoch scalars, the test histograms and their summaries, hyper-parameters and figures:
-    matplotlib charts with ``add_figure`` (which closes them), RGB pictures with ``add_image``."""
-    for entry in fold.epochs:
+def _histogram(writer, tag: str, values: list, step: int) -> None:
+    """A histogram of the values that exist (None: no prediction, or no equilibrium, is left out)."""
+    data = np.array([v for v in values if v is not None], dtype=float)
+    if len(data):
+        writer.add_histogram(tag, data, step)
+
+
+def log_epochs(writer, fold: GraspFold) -> None:
+    """Per training epoch (step: the epoch, 1 first): the report's epoch log, and what the learner predicted
+    before each grasp's outcome: orientation errors, E[mu_0] and the measured mu_0 of the grasps with a
+    prediction, the fingers it would choose; the grasps without a prediction (without a finger choice,
+    without equilibrium) counted."""
+    for entry, predicted in zip(fold.epochs, fold.predictions):
+        step = entry["epoch"] + 1
         for tag in ("mistakes", "poor", "features_2", "features_3", "sampled_2", "sampled_3"):
-            writer.add_scalar(f"train/{tag}", entry[tag], entry["epoch"])
+            writer.add_scalar(f"epoch/{tag}", entry[tag], step)
+        judged = [e is not None for e in predicted["error_deg"]]
+        measured = [m for m, j in zip(predicted["measured_mu0"], judged) if j]
+        writer.add_scalar("epoch/unpredicted", judged.count(False), step)
+        writer.add_scalar("epoch/no_finger_choice", predicted["fingers"].count(None), step)
+        writer.add_scalar("epoch/no_equilibrium", measured.count(None), step)
+        _histogram(writer, "epoch/orientation_error_deg", predicted["error_deg"], step)
+        _histogram(writer, "epoch/mu0_expected", predicted["expected_mu0"], step)
+        _histogram(writer, "epoch/mu0_measured", measured, step)
+        _histogram(writer, "epoch/fingers_chosen", predicted["fingers"], step)
+
+
+def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict) -> None:
+    """The epochs (:func:`log_epochs`), then the fold's tests (step: the epochs trained): histograms of
+    the orientation errors, probes and mu_0 (capped at MU0_CAP) that exist, the grasps without a
+    prediction or without equilibrium counted, the report's summaries, hyper-parameters and figures
+    (matplotlib charts with ``add_figure``, which closes them, RGB pictures with ``add_image``)."""
+    log_epochs(writer, fold)
     step = len(fold.epochs)
     res = results([evaluation])
-    errors = [UNPREDICTED_DEG if e is None else e for e in evaluation["orientation_errors_deg"]]
-    writer.add_histogram("test/orientation_error_deg", np.array(errors), step)
+    errors = evaluation["orientation_errors_deg"]
+    _histogram(writer, "fold/orientation_error_deg", errors, step)
+    writer.add_scalar("fold/unpredicted", errors.count(None), step)
     for side in ("haptic", "cued"):
-        writer.add_histogram(f"test/probes_{side}", np.array([g["probes"] for g in evaluation[side]]), step)
-        mu0 = [MU0_CAP if g["mu0"] is None else min(g["mu0"], MU0_CAP) for g in evaluation[side]]
-        writer.add_histogram(f"test/mu0_{side}", np.array(mu0), step)
-        writer.add_scalar(f"test/probes_{side}_mean", res["probes"][side]["mean"], step)
-        writer.add_scalar(f"test/mu0_{side}_median", res["mu0"][side]["median"], step)
-        writer.add_scalar(f"test/poor_{side}", res["poor_grasp_fraction"][side], step)
-    writer.add_scalar("test/orientation_error_median_deg", res["orientation_error_deg"]["median"], step)
-    writer.add_scalar("test/orientation_error_p90_deg", res["orientation_error_deg"]["p90"], step)
+        mu0 = [g["mu0"] for g in evaluation[side]]
+        writer.add_histogram(f"fold/probes_{side}", np.array([g["probes"] for g in evaluation[side]]), step)
+        _histogram(writer, f"fold/mu0_{side}", [None if m is None else min(m, MU0_CAP) for m in mu0], step)
+        writer.add_scalar(f"fold/no_equilibrium_{side}", mu0.count(None), step)
+        writer.add_scalar(f"fold/probes_{side}_mean", res["probes"][side]["mean"], step)
+        writer.add_scalar(f"fold/mu0_{side}_median", res["mu0"][side]["median"], step)
+        writer.add_scalar(f"fold/poor_{side}", res["poor_grasp_fraction"][side], step)
+    writer.add_scalar("fold/orientation_error_median_deg", res["orientation_error_deg"]["median"], step)
+    writer.add_scalar("fold/orientation_error_p90_deg", res["orientation_error_deg"]["p90"], step)
     hparams = {k: v for k, v in settings.items() if isinstance(v, (int, float, str, bool))}
     metrics = {"hparam/orientation_error_median_deg": res["orientation_error_deg"]["median"],
                "hparam/poor_haptic": res["poor_grasp_fraction"]["haptic"], "hparam/poor_cued": res["poor_grasp_fraction"]["cued"]}
     writer.add_hparams(hparams, metrics, run_name=".", global_step=step)
     for name, picture in pictures.items():
         if isinstance(picture, np.ndarray):
-            writer.add_image(f"figures/{name}", picture, step, dataformats="HWC")
+            writer.add_image(f"fold/figure_{name}", picture, step, dataformats="HWC")
         else:
-            writer.add_figure(f"figures/{name}", picture, step)
+            writer.add_figure(f"fold/figure_{name}", picture, step)
 
 
 def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np.ndarray:
@@ -109,9 +159,30 @@ def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np
     return titled(grid(panels, per_kind), f"{heading}: the feature behind each recommendation (figures 6.15, 6.16)")
 
 
+def _stored(path: Path, config: dict, fold: int) -> dict | None:
+    """The checkpoint of a fold to resume (None where there is none); InputError for a damaged or foreign
+    file, or one written under other settings."""
+    if not path.is_file():
+        return None
+    data = load_checkpoint(path, FOLD_KIND)
+    if data.get("config") != config or data.get("fold") != fold:
+        raise InputError(f"{path}: written by a different run configuration; use another --out or delete it to start afresh")
+    if not isinstance(data.get("done"), bool) or not isinstance(data.get("state"), dict) or \
+            (data["done"] and not isinstance(data.get("entry"), dict)):
+        raise InputError(f"{path}: damaged grasp fold checkpoint (no state, or an ended fold without its report entry)")
+    return data
+
+
+def _save(path: Path, config: dict, fold: GraspFold, entry: dict | None = None) -> None:
+    """A fold's checkpoint: its state after the last epoch, and once it has ended (``entry``), its report entry."""
+    save_checkpoint(path, FOLD_KIND, {"config": config, "fold": fold.k, "done": entry is not None,
+                                      "state": fold.state_dict(), "entry": entry})
+
+
 def seed_task(job: dict) -> dict:
     """One seed of the experiment: every fold, off-line (and on-line), into ``job['out']`` (report,
-    figures) and TensorBoard ``job['logdir']``/foldK; returns its report. Picklable, for local
+    figures, each fold's checkpoint in foldK/) and TensorBoard ``job['logdir']``/foldK; returns its
+    report. With ``resume``, each fold goes on from its checkpoint (module doc). Picklable, for local
     processes and Ray (training/cli/parallel.py)."""
     from torch.utils.tensorboard import SummaryWriter
 
@@ -130,31 +201,45 @@ def seed_task(job: dict) -> dict:
     folds, figures = [], []
     for k in range(1, args.folds + 1):
         for mode in modes:
-            share_idle_cores()  # the last seeds of a --workers run take the idle cores
-            learner = GraspLearner(math.radians(args.t_dtheta), seed=seed * 100 + k, finger_choice=args.finger_choice,
-                                   mu0_split=_split(args))
-            fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
-            fold.fit(args.epochs, online=mode == "online")
-            evaluation = fold.evaluate()
-            evaluations[mode].append(evaluation)
             name = f"fold{k}" + ("-online" if mode == "online" else "")
-            which = f"{args.experiment}, seed {seed}, {name}"
-            pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
-                        "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
-                        "features": recommended_features(fold, which)}
-            ledger.events(logdir / name)
-            with SummaryWriter(str(logdir / name)) as writer:
-                log_fold(writer, {**settings, "mode": mode}, fold, evaluation, pictures)
-            ledger.files(out / f"{name}_features.png")
-            save_rgb(out / f"{name}_features.png", pictures["features"])
+            checkpoint, fold_config = out / name / "checkpoint.json", {**settings, "mode": mode}
+            stored = _stored(checkpoint, fold_config, k) if args.resume else None
+            if stored is None or not stored["done"]:
+                share_idle_cores()  # the last seeds of a --workers run take the idle cores
+                learner = GraspLearner(learner_settings(args), seed=seed * 100 + k, device=device)
+                fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
+                if stored is not None:
+                    try:
+                        fold.load_state_dict(stored["state"])
+                    except DAMAGED as err:
+                        raise InputError(f"{checkpoint}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
+                    for events in (logdir / name).glob(f"{EVENTS}*"):  # what an interrupted log may have left
+                        events.unlink()
+                ledger.files(checkpoint)
+                fold.fit(args.epochs, online=mode == "online", after_epoch=lambda: _save(checkpoint, fold_config, fold))
+                evaluation = fold.evaluate()
+                which = f"{args.experiment}, seed {seed}, {name}"
+                pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
+                            "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
+                            "features": recommended_features(fold, which)}
+                ledger.events(logdir / name)
+                with SummaryWriter(str(logdir / name)) as writer:
+                    log_fold(writer, fold_config, fold, evaluation, pictures)
+                ledger.files(out / f"{name}_features.png")
+                save_rgb(out / f"{name}_features.png", pictures["features"])
+                entry = {"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
+                         "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None, quality=_quality(q))
+                                               for f, m, q in zip(s.features, s.models, s.quality.T)]
+                                      for c, s in learner.sets.items()}}
+                _save(checkpoint, fold_config, fold, entry)
+            else:
+                entry = stored["entry"]
+            evaluations[mode].append(entry["tests"])
+            folds.append(entry)
             figures.append(f"{name}_features.png")
-            folds.append({"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
-                          "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None, quality=_quality(q))
-                                                for f, m, q in zip(s.features, s.models, s.quality.T)]
-                                       for c, s in learner.sets.items()}})
-            last = fold.epochs[-1]
+            last = entry["epochs"][-1]
             if not args.quiet:
-                print(f"seed {seed} fold {k} {mode}: {len(fold.epochs)} epochs, last with {last['mistakes']:.2f} "
+                print(f"seed {seed} fold {k} {mode}: {len(entry['epochs'])} epochs, last with {last['mistakes']:.2f} "
                       f"mistakes; {last['features_2']} + {last['features_3']} features")
     offline = evaluations["offline"]
     ledger.files(*(out / name for name in ("errors.png", "grasps.png", "report.json", "report.md")))
@@ -182,8 +267,8 @@ def grasp_command(args) -> int:
         raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
     start = time.perf_counter()
     out = Path(args.out or f"runs/grasp-{args.experiment}")
-    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", False, args.overwrite,
-                   can_resume=False) as folder:
+    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
+        args.checkpoints = folder.out  # where an interrupted run continues from (training/run.py main)
         reach_ray(args.ray)
         folder.clear()  # the inputs are checked (the simulator needs no files)
         return _grasp(args, folder, start)
@@ -193,7 +278,7 @@ def _grasp(args, folder: RunFolder, start: float) -> int:
     """The body of :func:`grasp_command` once the run folder is held."""
     out, logdir = folder.out, folder.logdir
     parallel = args.workers > 1 or args.ray is not None
-    settings = {k: v for k, v in vars(args).items() if k != "run"}
+    settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
     seeds = range(args.seed, args.seed + args.seeds)
     jobs = [{"args": settings, "seed": s, "out": str(out if s == args.seed else out / f"seed{s}"),
@@ -232,6 +317,25 @@ def _grasp(args, folder: RunFolder, start: float) -> int:
     return 0
 
 
+def _learner_options(p: argparse.ArgumentParser) -> None:
+    """``OPTIONS`` as :class:`GraspSettings` describes them, with its defaults (the measured best);
+    ``--t-dtheta`` in degrees."""
+    defaults = GraspSettings()
+    for f in fields(GraspSettings):
+        if f.name not in OPTIONS:
+            continue
+        flag, default, text = "--" + f.name.replace("_", "-"), getattr(defaults, f.name), f.metadata["help"]
+        if f.name == "t_dtheta":
+            p.add_argument(flag, type=number, default=math.degrees(default), metavar=f.metadata["metavar"],
+                           help=f"{text}, in degrees (default {math.degrees(default):g})")
+        elif f.name == "finger_choice":
+            p.add_argument(flag, choices=[str(c) for c in FingerChoice], default=str(default),
+                           help=f"{text} (default {default}; see ftorch/grasp/learner.py)")
+        else:
+            p.add_argument(flag, type=number, default=default, metavar=f.metadata["metavar"],
+                           help=f"{text}, with --finger-choice quality (default {default:g})")
+
+
 def add_parser(commands) -> None:
     """The ``grasp`` sub-command and its options."""
     p = commands.add_parser("grasp", help="grasp pre-shaping experiments of chapter 6 (figures 6.13, 6.14, 6.17)")
@@ -244,14 +348,7 @@ def add_parser(commands) -> None:
                    help="training grasps per category and fold (default 20)")
     p.add_argument("--epochs", type=at_least(1, "a number of passes", 1000), default=10,
                    help="passes over the training grasps (default 10)")
-    p.add_argument("--t-dtheta", type=number, default=10.0, help="error below which a prediction is correct, degrees (default 10)")
-    p.add_argument("--finger-choice", choices=FINGER_CHOICES, default="quality",
-                   help="alg. 6.2 step 2b: quality (default): per set, the mean mu_0 on the image's side of the best "
-                        "quality split, and quality mistakes learned from; pooled: E[mu_0] over every present feature, "
-                        "weighted by its support; thesis: E[mu_0] of f*_c alone (see ftorch/grasp/learner.py)")
-    p.add_argument("--mu0-split", type=number, default=POOR_MU0,
-                   help=f"for --finger-choice quality: the mu_0 dividing good from poor grasps (default {POOR_MU0}, "
-                        "the protocol's split between the two modes of figure 6.17)")
+    _learner_options(p)
     p.add_argument("--size", type=at_least(1, "an image side in pixels", 1024), default=64, help="camera image side in pixels (default 64)")
     p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
@@ -264,7 +361,9 @@ def add_parser(commands) -> None:
     p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1,
                    help="run the seeds as N local processes at once (default 1: one after another)")
     p.add_argument("--ray", metavar="ADDRESS", help="run the seeds as tasks on a Ray cluster (see recognize --help)")
-    p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (refused without it)")
+    p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT (after its last epoch)")
+    p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (without it, or --resume, "
+                   "a folder that holds a run is refused)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=grasp_command)
 

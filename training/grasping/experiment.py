@@ -25,6 +25,13 @@ again from the recommendation (cued) against its recorded haptic-only grasp: pro
 (figures 6.14, 6.17). The finger count is the category's, except in ``mixed``, where the learned
 models choose it (alg. 6.2 step 2b). A grasp is poor where mu_0 > ``POOR_MU0``, the split
 between the two modes of figure 6.17.
+
+A fold's state after an epoch (:meth:`GraspFold.state_dict`: the learner's training state with its
+generator, the presentation order's generator, the epoch log and what the learner predicted
+before each training grasp) restores a fold that trains on exactly as the uninterrupted one: the
+pool, the fold's images and their records are recomputed from the seed as before, bit for bit, the
+instance lists' values are stored exactly (ftorch.checkpoint), and every other random draw
+(regrasps) is a function of the seed and the trial alone.
 """
 from __future__ import annotations
 
@@ -36,7 +43,9 @@ import torch
 from tqdm import tqdm
 
 from ftorch import FeatureSpace
-from ftorch.grasp.learner import Experience, GraspLearner, angular_error
+from ftorch.checkpoint import decode_array, encode_array
+from ftorch.grasp.learner import GENERATOR_STATE, Experience, GraspLearner, angular_error
+from ftorch.grasp.settings import MU0_CAP, POOR_MU0
 from ftorch.space.record import ImageRecords
 
 from .camera import render
@@ -45,7 +54,6 @@ from .objects import KINDS, GraspObject, random_object
 
 EXPERIMENTS = ("clean", "noisy", "cue", "mixed")
 ALL_CATEGORIES = (("square", 2), ("triangle", 3), ("square", 3), ("triangle", 2))
-POOR_MU0 = 0.4
 
 
 def categories(experiment: str) -> tuple[tuple[str, int], ...]:
@@ -102,7 +110,8 @@ def choose(trials: list[Trial], experiment: str, best: int) -> list[Trial]:
 
 
 class GraspFold:
-    """One fold: training (off-line or on-line) and tests, with per-epoch logs."""
+    """One fold: training (off-line or on-line) and tests, with per-epoch logs: ``epochs`` (the report's)
+    and ``predictions`` (TensorBoard's: per epoch, what the learner predicted before each grasp's outcome)."""
 
     def __init__(self, k: int, experiment: str, pool: dict, best: int, space: FeatureSpace, learner: GraspLearner,
                  controller: HapticController, seed: int, progress: bool = False):
@@ -119,6 +128,8 @@ class GraspFold:
         self.position = {t.key: i for i, t in enumerate(trials)}
         self.records: dict[tuple, ImageRecords] = {t.key: self.batch[i] for i, t in enumerate(trials)}
         self.epochs: list[dict] = []
+        self.predictions: list[dict] = []
+        self.order = torch.Generator().manual_seed(seed * 1000 + k)  # the presentation order of each epoch
 
     def _fingers(self, trial: Trial) -> int | None:
         return None if self.experiment == "mixed" else trial.fingers
@@ -137,16 +148,21 @@ class GraspFold:
         cue = self.recommendation(trial)
         return (cue.fingers, cue.theta_h) if cue is not None else (trial.fingers, None)
 
-    def fit(self, epochs: int, online: bool = False) -> None:
-        """Alg. 6.2 over the training grasps for up to ``epochs`` passes (off-line: the recorded
-        grasps; on-line: grasps executed from the learner's recommendations)."""
-        order = torch.Generator().manual_seed(self.seed * 1000 + self.k)
-        bar = tqdm(range(epochs), desc=f"fold {self.k} {'on' if online else 'off'}-line", unit="epoch",
-                   disable=not self.progress)
-        for epoch in bar:
+    def finished(self, epochs: int, online: bool = False) -> bool:
+        """Whether training is over: ``epochs`` passes made, or (off-line) the last made no mistake."""
+        return len(self.epochs) >= epochs or (not online and bool(self.epochs) and self.epochs[-1]["mistakes"] == 0)
+
+    def fit(self, epochs: int, online: bool = False, after_epoch=None) -> None:
+        """Alg. 6.2 over the training grasps for up to ``epochs`` passes (off-line: the recorded grasps;
+        on-line: grasps executed from the learner's recommendations), from the epochs made before (a
+        restored fold goes on); ``after_epoch()`` is called after each."""
+        bar = tqdm(total=epochs, initial=len(self.epochs), desc=f"fold {self.k} {'on' if online else 'off'}-line",
+                   unit="epoch", disable=not self.progress)
+        while not self.finished(epochs, online):
+            epoch = len(self.epochs)
             counts = {"correct": 0, "refit": 0, "sampled": 0}
-            mu0 = []
-            for i in torch.randperm(len(self.train), generator=order).tolist():
+            mu0, predicted = [], {"error_deg": [], "expected_mu0": [], "measured_mu0": [], "fingers": []}
+            for i in torch.randperm(len(self.train), generator=self.order).tolist():
                 trial = self.train[i]
                 if online:
                     fingers, theta_h = self._explore(trial)
@@ -154,15 +170,52 @@ class GraspFold:
                     image = (*trial.key, epoch)
                 else:
                     outcome, image = trial.outcome, trial.key
-                counts[self.learner.learn(image, self.records[trial.key], trial.experience(outcome))] += 1
+                experience = trial.experience(outcome)
+                self._predicted(predicted, trial, experience)
+                counts[self.learner.learn(image, self.records[trial.key], experience)] += 1
                 mu0.append(outcome.mu0)
+            self.predictions.append(predicted)
             self.epochs.append({"epoch": epoch, **counts, "mistakes": (counts["refit"] + counts["sampled"]) / len(self.train),
                                 "poor": float(np.mean(np.array(mu0) > POOR_MU0)),
                                 **{f"features_{c}": len(s) for c, s in self.learner.sets.items()},
                                 **{f"sampled_{c}": s.sampled for c, s in self.learner.sets.items()}})
+            bar.update(1)
             bar.set_postfix(mistakes=f"{self.epochs[-1]['mistakes']:.2f}")
-            if counts["correct"] == len(self.train) and not online:
-                break
+            if after_epoch is not None:
+                after_epoch()
+        bar.close()
+
+    def _predicted(self, predicted: dict, trial: Trial, experience: Experience) -> None:
+        """What the learner predicts for a training grasp before learning its outcome (recommending is
+        pure): the orientation error and E[mu_0] with the fingers grasped with, the measured mu_0 (None:
+        no equilibrium; else capped at MU0_CAP, as the instance list holds it), and the fingers it would
+        choose (None where it has no prediction)."""
+        cue = self.learner.recommend(self.records[trial.key], experience.fingers)
+        chosen = cue if self._fingers(trial) == experience.fingers else self.recommendation(trial)
+        error = angular_error(cue.theta_h, experience.theta_H, experience.period) if cue is not None else None
+        predicted["error_deg"].append(None if cue is None else math.degrees(float(error)))
+        predicted["expected_mu0"].append(None if cue is None else cue.expected_mu0)
+        predicted["measured_mu0"].append(min(experience.mu0, MU0_CAP) if math.isfinite(experience.mu0) else None)
+        predicted["fingers"].append(None if chosen is None else chosen.fingers)
+
+    def state_dict(self) -> dict:
+        """JSON-ready: what training goes on from (module doc): the epoch log and predictions, the
+        presentation order's generator and the learner's training state."""
+        return {"epochs": self.epochs, "predictions": self.predictions,
+                "order": encode_array(self.order.get_state().numpy().astype(np.float64)),
+                "learner": self.learner.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict` into this fold, built as the saved one was; ValueError (or another
+        of ``ftorch.checkpoint.DAMAGED``) for a damaged state."""
+        epochs, predictions = state["epochs"], state["predictions"]
+        if not isinstance(epochs, list) or not isinstance(predictions, list) or len(epochs) != len(predictions):
+            raise ValueError("the epoch log and the predictions must be lists of one entry per epoch")
+        if [e["epoch"] for e in epochs] != list(range(len(epochs))):
+            raise ValueError("the epoch log must number its epochs 0, 1, ...")
+        self.learner.load_state_dict(state["learner"], lambda name: self.records[tuple(name[:3])])
+        self.order.set_state(torch.from_numpy(decode_array(state["order"], shape=GENERATOR_STATE).astype(np.uint8)))
+        self.epochs, self.predictions = epochs, predictions
 
     def evaluate(self) -> dict:
         """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects,

@@ -6,10 +6,8 @@ from pathlib import Path
 import numpy as np
 
 from ftorch.checkpoint import write_text
-from ftorch.grasp.learner import MU0_CAP
+from ftorch.grasp.settings import MU0_CAP, POOR_MU0
 from training.cli.devices import described
-
-from .experiment import POOR_MU0
 
 UNPREDICTED_DEG = 180.0  # an image without a present feature counts as the worst error
 
