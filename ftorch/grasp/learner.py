@@ -25,17 +25,14 @@ Decisions the text leaves open:
   features chosen for their orientation power (KSD_f). "pooled" (beyond chapter 6): compare, per
   set, the mean of eq. 6.8 over *all* features present in the image, each weighted by its support
   (the instances above alpha_f its model was fitted on). The orientation still comes from f*_c.
-  Why: a feature's orientation power says nothing about which objects it fires on. Over seed 1,
-  fold 1 of the mixed experiment, f*_2 of most squares was a feature with KSD .89 that had been
-  present on 6 training images, 5 of them triangles grasped with two fingers (poor); its
-  E[mu_0] = .49 made 28 of 80 held-out squares take three fingers. Pooling over the present
-  features, with their support, chose right for 73 of 80 squares (thesis rule 52, every triangle
-  right under both).
-  "quality" (beyond chapter 6; the default): over seeds 100-104 pooling still failed
-  (reductions of poor grasps 79, 36, 41, 8 and 82 %): in seed 102 every training category's mu_0 lies
-  in its own narrow band (good .01-.05, poor .42-.57), so choosing the finger count is telling the
+  Why: a feature's orientation power says nothing about which objects it fires on: f*_c may be a
+  feature seen mostly on the other object kind, and its E[mu_0] then picks the wrong finger count
+  (the cases are in docs/decisions.md, chapter 6).
+  "quality" (beyond chapter 6; the default): pooling can still fail where every training
+  category's mu_0 lies in its own narrow band, so that choosing the finger count is telling the
   object kinds apart, yet nearly every modelled feature is present (above its orientation alpha_f)
-  on both kinds, and support-weighted means of eq. 6.8 come out alike for both sets. A feature may
+  on both kinds, and support-weighted means of eq. 6.8 come out alike for both sets (figures in
+  docs/results.md, chapter 6). A feature may
   still *respond* differently to the two kinds. So each feature also gets a quality split: the KSD
   (def. 4.2, in either direction, alg. 6.1's machinery with good and poor grasps in place of correct
   and false predictions) between its values on the set's good (mu_0 <= ``mu0_split``) and poor

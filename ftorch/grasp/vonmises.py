@@ -5,10 +5,9 @@ mixture (eq. 6.4) weights K of them by P(k). Each mixture is fitted by maximum l
 (eq. 6.5) with the EM algorithm of the appendix. The appendix set EM aside because kappa has no
 closed form; a few Newton steps on A1(kappa) = r from Best and Fisher's estimate give it to
 machine precision, and batched EM then reaches a higher likelihood than a batched direct
-(L-BFGS) fit in a tenth of the time (DESIGN.md chose direct optimization; measured in
-docs/decisions.md). kappa is capped at ``max_kappa`` (no singular modes). K is chosen by ICL (Biernacki
-et al. 2000, the criterion of 6.4.1): log L + sum_ik t_ik log t_ik - (3K - 1)/2 log N, with t_ik
-the component posteriors.
+(L-BFGS) fit, in less time (measured in docs/decisions.md). kappa is capped at ``max_kappa`` (no
+singular modes). K is chosen by ICL (Biernacki et al. 2000, the criterion of 6.4.1):
+log L + sum_ik t_ik log t_ik - (3K - 1)/2 log N, with t_ik the component posteriors.
 
 Many data sets and every candidate K are fitted together as one padded batch: the hot path
 has no Python loop over data points or data sets.

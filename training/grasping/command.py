@@ -28,10 +28,11 @@ from ftorch.errors import InputError
 from ftorch.grasp.learner import GraspLearner
 from ftorch.grasp.settings import MU0_CAP, FingerChoice, GraspSettings
 from ftorch.space.draw import draw_features, grid, save_rgb, titled
-from training.cli.arguments import MAX_SEED, at_least, number, seed
+from training.cli.arguments import at_least, number
 from training.cli.devices import machine, resolve_device
+from training.cli.jobs import check_seeds, device_options, run_folders, run_jobs, run_options
 from training.cli.outputs import EVENTS, RunFolder
-from training.cli.parallel import TasksFailed, reach_ray, run_tasks, share_idle_cores
+from training.cli.parallel import reach_ray, share_idle_cores
 from training.plots import figure_rgb
 from training.recognition.report import write_json
 
@@ -263,8 +264,7 @@ def seed_task(job: dict) -> dict:
 def grasp_command(args) -> int:
     _check(args)
     resolve_device(args.device)
-    if args.seed + args.seeds - 1 > MAX_SEED:
-        raise InputError(f"--seed {args.seed} --seeds {args.seeds}: the last seed would pass {MAX_SEED}")
+    check_seeds(args)
     start = time.perf_counter()
     out = Path(args.out or f"runs/grasp-{args.experiment}")
     with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
@@ -281,13 +281,9 @@ def _grasp(args, folder: RunFolder, start: float) -> int:
     settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
     settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
     seeds = range(args.seed, args.seed + args.seeds)
-    jobs = [{"args": settings, "seed": s, "out": str(out if s == args.seed else out / f"seed{s}"),
-             "logdir": str(logdir if s == args.seed else logdir / f"seed{s}"), "ledger": folder.ledger} for s in seeds]
-    try:
-        reports = run_tasks(seed_task, jobs, [f"seed {s}" for s in seeds], args.workers, args.ray, progress=not args.quiet)
-    except TasksFailed as failed:
-        raise InputError(f"{len(failed.failures)} of {len(jobs)} seeds failed twice ({failed}); "
-                         f"the other seeds' folders in {out} are complete") from None
+    jobs = [{"args": settings, "seed": s, "out": str(o), "logdir": str(t), "ledger": folder.ledger}
+            for s, o, t in run_folders(args, out, logdir)]
+    reports = run_jobs(seed_task, jobs, [f"seed {s}" for s in seeds], args, out, "seeds")
     report = reports[0]
     if args.seeds > 1:
         report["seeds"] = seed_study(reports)
@@ -341,7 +337,6 @@ def add_parser(commands) -> None:
     p = commands.add_parser("grasp", help="grasp pre-shaping experiments of chapter 6 (figures 6.13, 6.14, 6.17)")
     p.add_argument("--experiment", choices=EXPERIMENTS, default="clean",
                    help="clean (6.13a), noisy (6.13b), cue (6.14) or mixed (6.17; default clean)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--pool", type=at_least(1, "a number of grasps", 100000), default=80,
                    help="simulated grasps per category (object kind and fingers; default 80)")
     p.add_argument("--best", type=at_least(1, "a number of grasps", 100000), default=20,
@@ -353,17 +348,9 @@ def add_parser(commands) -> None:
     p.add_argument("--folds", type=int, choices=(1, 2), default=2, help="1 or 2 folds (default 2)")
     p.add_argument("--online", action="store_true", help="also learn on-line on the same objects, executing the "
                    "recommended grasps, and report off-line vs on-line")
-    p.add_argument("--device", default="auto", help="cpu, cuda[:N] or auto (default)")
-    p.add_argument("--out", help="run folder (default runs/grasp-EXPERIMENT)")
-    p.add_argument("--logdir", help="TensorBoard folder (default OUT/tensorboard)")
-    p.add_argument("--seeds", type=at_least(1, "a number of seeds", 1000), default=1, help="repeat the experiment with seeds "
-                   "SEED, SEED+1, ... (into OUT/seedN): per-seed results and the spread of the reductions (default 1)")
-    p.add_argument("--workers", type=at_least(1, "a number of processes", 1024), default=1,
-                   help="run the seeds as N local processes at once (default 1: one after another)")
-    p.add_argument("--ray", metavar="ADDRESS", help="run the seeds as tasks on a Ray cluster (see recognize --help)")
-    p.add_argument("--resume", action="store_true", help="continue each fold from its checkpoint in OUT (after its last epoch)")
-    p.add_argument("--overwrite", action="store_true", help="replace the run already in OUT (without it, or --resume, "
-                   "a folder that holds a run is refused)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    device_options(p)
+    run_options(p, "runs/grasp-EXPERIMENT", repeated="repeat the experiment with seeds SEED, SEED+1, ... (into OUT/seedN): "
+                "per-seed results and the spread of the reductions (default 1)", jobs="seeds",
+                resume="continue each fold from its checkpoint in OUT (after its last epoch)")
     p.set_defaults(run=grasp_command)
 
