@@ -11,12 +11,13 @@ it (``--t-dtheta`` for ``t_dtheta``, which the command line takes in degrees).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields
 from enum import StrEnum
 
 import numpy as np
 
 from ..errors import InputError
+from ..settings import Settings, option
 
 MU0_CAP = 2.0  # mu_0 is capped here (an infinite mu_0, no equilibrium, would swamp eq. 6.8's average)
 POOR_MU0 = 0.4  # the split between the two modes of figure 6.17: a grasp is poor where mu_0 exceeds it
@@ -30,32 +31,28 @@ class FingerChoice(StrEnum):
     QUALITY = "quality"  # the mean mu_0 on the image's side of the set's best quality split
 
 
-def _option(default, help: str, metavar: str | None = None, at_least: int | None = None, what: str | None = None):
-    """A settings field; ``help``, ``metavar`` and ``what`` (an integer's noun) describe it on the command
-    line, ``at_least`` bounds an integer (checked everywhere)."""
-    return field(default=default, metadata={"help": help, "metavar": metavar, "at_least": at_least, "what": what})
-
-
 @dataclass(frozen=True)
-class GraspSettings:
+class GraspSettings(Settings):
     """The options of :class:`~ftorch.grasp.learner.GraspLearner`; validated on construction (InputError).
     ``t_dtheta`` is in radians; ``mu0_split`` None learns from orientation mistakes only, as the thesis."""
 
-    t_dtheta: float = _option(math.radians(10), "the orientation error below which a prediction is correct, "
-                              "6.4.2", "DEGREES")
-    max_k: int = _option(4, "components of a feature's von Mises mixture at most, eq. 6.4", "K", 1,
-                         "a number of components")
-    min_points: int = _option(3, "instances a feature model, a mixture component or a quality split side needs",
-                              "N", 1, "a number of instances")
-    discard_every: int = _option(40, "grasps of a set between discards of its unused features", "N", 1,
-                                 "a number of grasps")
-    max_distance: float | None = _option(None, "longest edgel pair sampled, pixels (default a quarter image side)",
-                                         "PIXELS")
-    finger_choice: FingerChoice = _option(FingerChoice.QUALITY, "alg. 6.2 step 2b: quality: per set, the mean mu_0 "
-                                          "on the image's side of the best quality split; pooled: E[mu_0] over every "
-                                          "present feature, weighted by its support; thesis: E[mu_0] of f*_c alone")
-    mu0_split: float | None = _option(POOR_MU0, "the mu_0 dividing good from poor grasps, for quality splits and "
-                                      "quality mistakes", "MU0")
+    WHAT = "grasp learner"
+
+    t_dtheta: float = option(math.radians(10), "the orientation error below which a prediction is correct, "
+                             "6.4.2", "DEGREES")
+    max_k: int = option(4, "components of a feature's von Mises mixture at most, eq. 6.4", "K", 1,
+                        what="a number of components")
+    min_points: int = option(3, "instances a feature model, a mixture component or a quality split side needs",
+                            "N", 1, what="a number of instances")
+    discard_every: int = option(40, "grasps of a set between discards of its unused features", "N", 1,
+                                what="a number of grasps")
+    max_distance: float | None = option(None, "longest edgel pair sampled, pixels (default a quarter image side)",
+                                        "PIXELS")
+    finger_choice: FingerChoice = option(FingerChoice.QUALITY, "alg. 6.2 step 2b: quality: per set, the mean mu_0 "
+                                         "on the image's side of the best quality split; pooled: E[mu_0] over every "
+                                         "present feature, weighted by its support; thesis: E[mu_0] of f*_c alone")
+    mu0_split: float | None = option(POOR_MU0, "the mu_0 dividing good from poor grasps, for quality splits and "
+                                     "quality mistakes", "MU0")
 
     def __post_init__(self):
         for f in fields(self):
@@ -90,17 +87,6 @@ class GraspSettings:
         """Alg. 6.2 as the dissertation gives it (step 2b by eq. 6.8 of f*_c, orientation mistakes only),
         with ``changes``."""
         return cls(finger_choice=FingerChoice.THESIS, mu0_split=None).replace(**changes)
-
-    def replace(self, **changes) -> "GraspSettings":
-        """These settings with ``changes``; InputError naming an unknown option."""
-        unknown = sorted(set(changes) - set(self.names()))
-        if unknown:
-            raise InputError(f"unknown grasp learner options {unknown}: expected some of {', '.join(self.names())}")
-        return replace(self, **changes)
-
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
 
     def to_dict(self) -> dict:
         """JSON-ready: the finger choice as its name."""

@@ -10,12 +10,13 @@ field's ``help`` is what the command line prints for it (``--n-ex`` for ``n_ex``
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields
 from enum import StrEnum
 
 import numpy as np
 
 from ..errors import InputError
+from ..settings import Settings, option
 from .candidates import THESIS_PRIMITIVES, Primitive, primitive_set
 
 
@@ -26,44 +27,36 @@ class Evidence(StrEnum):
     POSITIVE = "positive"  # presence only: an absent feature may be occluded
 
 
-def _option(default, help: str, metavar: str | None = None, at_least: int | None = None, at_most: int | None = None,
-            what: str | None = None):
-    """A settings field; ``help``, ``metavar``, ``what`` (an integer's noun) and the bounds ``at_least``
-    to ``at_most`` describe it on the command line (the lower bound is checked everywhere)."""
-    return field(default=default, metadata={"help": help, "metavar": metavar, "at_least": at_least,
-                                            "at_most": at_most, "what": what})
-
-
 @dataclass(frozen=True)
-class LearnerSettings:
+class LearnerSettings(Settings):
     """The options of :class:`~ftorch.recognition.learner.DistinctiveFeatureLearner` (its module
     docstring says what each does and why); validated on construction (InputError)."""
 
-    n_ex: int = _option(5, "example images per class, alg. 4.8", at_least=1, at_most=1000,
-                               what="a number of images")
-    n_fgen: int = _option(10, "candidates per generation method, alg. 4.10", at_least=1, at_most=1000,
-                                 what="a number of candidates")
-    min_information: float = _option(
+    n_ex: int = option(5, "example images per class, alg. 4.8", at_least=1, at_most=1000,
+                              what="a number of images")
+    n_fgen: int = option(10, "candidates per generation method, alg. 4.10", at_least=1, at_most=1000,
+                                what="a number of candidates")
+    min_information: float = option(
         0.1, "stop a recognition inside learning once no unqueried feature has more mutual information "
         "with a class (4.4.2; 0: only at I_max = 0)", "BITS")
-    search_rounds: int = _option(1, "calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate "
-                                 "reaches t_KSD", "N", at_least=1, at_most=100, what="a number of calls")
-    redundancy: int = _option(3, "distinctive features each needed class distinction should have, 7.2.4 "
-                              "(1: alg. 5.2 as printed)", "K", at_least=1, at_most=100, what="a number of features")
-    evidence: Evidence = _option(Evidence.BOTH, "both: presence and absence enter the networks (4.4.1); "
-                                 "positive: presence only (4.4.2)")
-    pseudocount: float = _option(1.0, "added to every CPT count (0: relative frequencies as the thesis)", "A")
-    leak: float = _option(0.0, "detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing "
-                          "feature does not rule its class out", "L")
-    cut_position: float = _option(0.5, "a node's cut-point between the two values where its KSD is reached: "
-                                  "0.5 the midpoint (4.3.2)", "W")
-    test_information: float = _option(0.0, "the stopping threshold of the learner's answers (0: every "
-                                       "informative feature is asked)", "BITS")
-    primitives: tuple[Primitive, ...] = _option(
+    search_rounds: int = option(1, "calls of alg. 4.10 per search at most: alg. 5.1 searches until a candidate "
+                                "reaches t_KSD", "N", at_least=1, at_most=100, what="a number of calls")
+    redundancy: int = option(3, "distinctive features each needed class distinction should have, 7.2.4 "
+                             "(1: alg. 5.2 as printed)", "K", at_least=1, at_most=100, what="a number of features")
+    evidence: Evidence = option(Evidence.BOTH, "both: presence and absence enter the networks (4.4.1); "
+                                "positive: presence only (4.4.2)")
+    pseudocount: float = option(1.0, "added to every CPT count (0: relative frequencies as the thesis)", "A")
+    leak: float = option(0.0, "detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing "
+                         "feature does not rule its class out", "L")
+    cut_position: float = option(0.5, "a node's cut-point between the two values where its KSD is reached: "
+                                 "0.5 the midpoint (4.3.2)", "W")
+    test_information: float = option(0.0, "the stopping threshold of the learner's answers (0: every "
+                                      "informative feature is asked)", "BITS")
+    primitives: tuple[Primitive, ...] = option(
         THESIS_PRIMITIVES, f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
         "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
-    calibrate: bool = _option(False, "calibrated counting: count each node's cut-point and CPT on the training "
-                              "views other than those its search selected it on, where enough remain (cross-fitting)")
+    calibrate: bool = option(False, "calibrated counting: count each node's cut-point and CPT on the training "
+                             "views other than those its search selected it on, where enough remain (cross-fitting)")
 
     def __post_init__(self):
         for f in fields(self):
@@ -93,17 +86,6 @@ class LearnerSettings:
         """The dissertation's settings (alg. 4.4 until I_max = 0, relative frequencies, alg. 5.2 as
         printed), with ``changes``."""
         return cls(min_information=0.0, pseudocount=0.0, redundancy=1).replace(**changes)
-
-    def replace(self, **changes) -> "LearnerSettings":
-        """These settings with ``changes``; InputError naming an unknown option."""
-        unknown = sorted(set(changes) - set(self.names()))
-        if unknown:
-            raise InputError(f"unknown learner options {unknown}: expected some of {', '.join(self.names())}")
-        return replace(self, **changes)
-
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
 
     def to_dict(self) -> dict:
         """JSON-ready: the primitives as one comma-separated string, the evidence as its name."""

@@ -1,0 +1,35 @@
+"""What the learners' settings objects share (:class:`~ftorch.recognition.settings.LearnerSettings`,
+:class:`~ftorch.grasp.settings.GraspSettings`): fields that describe their command-line options,
+and replacing options with one error naming an unknown one."""
+from __future__ import annotations
+
+from dataclasses import field, fields, replace
+from typing import ClassVar
+
+from .errors import InputError
+
+
+def option(default, help: str, metavar: str | None = None, at_least: int | None = None, at_most: int | None = None,
+           what: str | None = None):
+    """A settings field; ``help``, ``metavar``, ``what`` (an integer's noun) and the bounds ``at_least``
+    to ``at_most`` describe it on the command line (the lower bound is checked everywhere)."""
+    return field(default=default, metadata={"help": help, "metavar": metavar, "at_least": at_least,
+                                            "at_most": at_most, "what": what})
+
+
+class Settings:
+    """The face of a frozen settings dataclass: :meth:`replace`, :meth:`names`. ``WHAT`` names the
+    learner in errors."""
+
+    WHAT: ClassVar[str] = "learner"
+
+    def replace(self, **changes):
+        """These settings with ``changes``; InputError naming an unknown option."""
+        unknown = sorted(set(changes) - set(self.names()))
+        if unknown:
+            raise InputError(f"unknown {self.WHAT} options {unknown}: expected some of {', '.join(self.names())}")
+        return replace(self, **changes)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
