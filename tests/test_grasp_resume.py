@@ -57,7 +57,8 @@ def test_an_interrupted_grasp_run_resumes_to_the_same_report(tmp_path, monkeypat
     with monkeypatch.context() as patch:  # cut after the off-line fold's first epoch
         patch.setattr(command, "_save", interrupt_at("fold1", 1))
         assert run.main([*ARGV, "--out", str(cut)]) == 130
-    assert "run the same command with --resume" in capsys.readouterr().err
+    assert f"the checkpoints in {cut} keep the epochs finished up to their last write: run the same command with --resume" \
+        in capsys.readouterr().err
     state = json.loads((cut / "fold1" / "checkpoint.json").read_text())
     assert not state["done"] and len(state["state"]["epochs"]) == 1 and not (cut / "report.json").exists()
     with monkeypatch.context() as patch:  # resumed, and cut again after the on-line fold's second epoch

@@ -80,8 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         where = getattr(args, "checkpoints", None)
-        print("interrupted" + (f"; the checkpoints in {where} keep the cycles finished up to their last write: run the same command "
-                               "with --resume to continue" if where else ""), file=sys.stderr)
+        done = "epochs" if args.command == "grasp" else "cycles"  # what a checkpoint is written after
+        print("interrupted" + (f"; the checkpoints in {where} keep the {done} finished up to their last write: run the same "
+                               "command with --resume to continue" if where else ""), file=sys.stderr)
         return 130
 
 
