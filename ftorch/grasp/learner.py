@@ -618,6 +618,8 @@ class GraspLearner:
             raise InputError(f"fingers: expected one of {FINGERS} or None for each of the {len(records)} images")
         best: list[Recommendation | None] = [None] * len(records)
         for c, feature_set in self.sets.items():
+            if None not in fingers and c not in fingers:
+                continue  # no image asks for this set: it is not measured
             values, thetas = feature_set.measure(records)
             chosen, _, expected = self._step_2b(feature_set, values, thetas)
             for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):

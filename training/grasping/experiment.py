@@ -189,7 +189,8 @@ class GraspFold:
         """What the learner predicts for a training grasp before learning its outcome (recommending is
         pure): the orientation error and E[mu_0] with the fingers grasped with, the measured mu_0 (None:
         no equilibrium; else capped at MU0_CAP, as the instance list holds it), and the fingers it would
-        choose (None where it has no prediction)."""
+        choose (None where it has no prediction). The set grasped with is measured once (learning reuses
+        it); in ``mixed`` the finger choice measures the other set too, the one cost these logs add."""
         cue = self.learner.recommend(self.records[trial.key], experience.fingers)
         chosen = cue if self._fingers(trial) == experience.fingers else self.recommendation(trial)
         error = angular_error(cue.theta_h, experience.theta_H, experience.period) if cue is not None else None
