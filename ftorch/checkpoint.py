@@ -73,8 +73,8 @@ class Memo:
         known = self.features.get(tuple(map(id, chunk)))
         return None if known is None else known[1]
 
-    def remember_features(self, chunk: tuple, block: dict) -> dict:
-        """Remember ``block`` as the packed form of ``chunk``; returns it."""
+    def remember_features(self, chunk: tuple, block: dict) -> None:
+        """Remember ``block`` as the packed form of ``chunk``."""
         self._keep(self.features, tuple(map(id, chunk)), (chunk, block))
         return block
 
