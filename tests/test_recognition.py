@@ -133,3 +133,52 @@ def test_recognition_follows_networks_that_change_between_calls():
     assert both_ways({k: nets[k] for k in ("Z", "Y", "X")}).queried[0] == "z1"  # ties: the first network
     nets["Y"].remove_feature("y2")
     assert "y2" not in both_ways(nets).queried
+
+
+def random_networks(rng: np.random.Generator) -> dict:
+    """Networks over a shared pool of features: some shared by several networks, linked groups (compound
+    arcs), deterministic CPT rows (impossible evidence), duplicated CPTs and equal values (ties)."""
+    pool = [f"f{i}" for i in range(12)]
+    nets = {}
+    for label in "ABCD":
+        net = ClassNetwork(label, table_limit=int(rng.integers(0, 6)))  # some groups compiled, some by einsum
+        for key in rng.choice(pool, size=int(rng.integers(2, 7)), replace=False).tolist():
+            parents = [p for p in net.features if rng.random() < 0.3][:2]
+            net.add_feature(key, parents=parents, threshold=float(rng.choice([0.25, 0.5, 0.75])))
+        for key in net.features:
+            shape = (2,) * (len(net.parents[key]) + 1)
+            present = rng.choice([0.0, 0.2, 0.5, 0.8, 1.0], size=shape)  # 0 and 1: impossible evidence
+            net.set_cpt(key, np.stack([1 - present, present], -1))
+        net.prior = np.array([0.5, 0.5]) if rng.random() < 0.5 else np.array([0.7, 0.3])
+        nets[label] = net
+    if rng.random() < 0.5:  # a twin network: every information tied with another network's
+        twin = nets["A"]
+        copy = ClassNetwork("E")
+        for key in twin.features:
+            copy.add_feature(key, parents=twin.parents[key], threshold=twin.threshold[key])
+            copy.set_cpt(key, twin.cpt[key])
+        copy.prior = twin.prior
+        nets["E"] = copy
+    return nets
+
+
+@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("positive_only", [False, True])
+def test_a_block_of_images_is_recognized_as_each_image_alone(seed, positive_only):
+    """Alg. 4.4 for many images at once gives each image's queries, values, beliefs and answer bit for
+    bit, ties and impossible evidence included."""
+    from ftorch.recognition.inference import Plan, recognize_block
+
+    rng = np.random.default_rng(seed)
+    nets = random_networks(rng)
+    plan = Plan.of(nets)
+    values = rng.choice([0.1, 0.25, 0.5, 0.6, 0.75, 0.9], size=(len(plan.keys), 40))  # equal to thresholds too
+    block = recognize_block(nets, values, positive_only=positive_only, plan=plan)
+    for b, got in enumerate(block):
+        column = dict(zip(plan.keys, values[:, b].tolist()))
+        alone = recognize(nets, column.__getitem__, positive_only=positive_only)
+        assert got.queried == alone.queried and got.values == alone.values
+        assert got.beliefs == alone.beliefs and got.posteriors == alone.posteriors and got.recognized == alone.recognized
+    assert recognize_block(nets, values[:, :0], plan=plan) == []
+    with pytest.raises(ValueError, match="features"):
+        recognize_block(nets, values[1:], plan=plan)

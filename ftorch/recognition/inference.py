@@ -113,6 +113,16 @@ class Plan:
         self.slots = [[] for _ in self.keys]  # the slots of each feature
         for slot, i in enumerate(self.slot_key.tolist()):
             self.slots[i].append(slot)
+        # the same as arrays, for many images at once (:func:`recognize_block`): each feature's slots
+        # (K, S), whether network n holds feature k (N, K), and its node position there (N, K)
+        self.key_slots = np.zeros((len(self.keys), len(self.slot_key)), dtype=bool)
+        self.key_slots[self.slot_key, np.arange(len(self.slot_key))] = True
+        self.holds = np.zeros((len(self.nets), len(self.keys)), dtype=bool)
+        self.position = np.zeros((len(self.nets), len(self.keys)), dtype=np.int64)
+        self.where = where  # each network's features as key indices, in its order
+        for n, w in enumerate(where):
+            self.holds[n, w] = True
+            self.position[n, w] = np.arange(len(w))
 
     @staticmethod
     def signature(networks: dict[Hashable, ClassNetwork]) -> tuple:
@@ -167,3 +177,83 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
         beliefs.append(dict(zip(labels, belief)))
     posteriors = beliefs[-1]
     return Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
+
+
+def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, tolerance: float = 1e-12,
+                    positive_only: bool = False, plan: Plan | None = None) -> list[Recognition]:
+    """Alg. 4.4 for B images at once: ``values`` (K, B) are the values of the plan's features
+    (``Plan.keys``, every network's features once, in network order) in each image.
+
+    The same steps as :func:`recognize`, taken by all images side by side: evidence states
+    (B, nodes) per network, informations (B, slots), one argmax per image and step, and each
+    network's :meth:`~ftorch.recognition.exact.ExactInference.evaluate` for the states its images
+    reach. Every number is computed by the same operations on the same operands as there (the
+    block only gathers and scatters them), so the queries, values, beliefs and answers are those
+    of :func:`recognize` image by image, ties included (tested).
+    """
+    plan = Plan.of(networks, plan)
+    labels, nets, keys, start, slot_key = plan.labels, plan.nets, plan.keys, plan.start, plan.slot_key
+    count = values.shape[1]
+    if values.shape[0] != len(keys):
+        raise ValueError(f"values for {values.shape[0]} features, but the networks hold {len(keys)}")
+    if not count:
+        return []
+    thresholds = np.zeros(plan.holds.shape)
+    for n, net in enumerate(nets):
+        thresholds[n, plan.where[n]] = [net.threshold[k] for k in net.features]
+    states = [np.full((count, len(net.features)), -1, dtype=np.int64) for net in nets]
+    evaluated = [net.inference.evaluate(state[0]) for net, state in zip(nets, states)]
+    belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))
+    informative = np.tile(np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0), (count, 1))
+    asked = np.zeros(informative.shape, dtype=bool)
+    first = dict(zip(labels, [e[0] for e in evaluated]))
+    beliefs = [[dict(first)] for _ in range(count)]
+    queried = [[] for _ in range(count)]
+    measured = [{} for _ in range(count)]
+    active = np.arange(count) if len(slot_key) else np.zeros(0, dtype=np.int64)
+    while len(active):
+        rows = informative[active]
+        slot = rows.argmax(1)
+        go = rows[np.arange(len(active)), slot] > tolerance
+        active, slot = active[go], slot[go]
+        if not len(active):
+            break
+        best = slot_key[slot]
+        mask = plan.key_slots[best]
+        asked[active] |= mask
+        informative[active] = np.where(mask, 0.0, informative[active])
+        value = values[best, active]
+        for b, k, v in zip(active.tolist(), best.tolist(), value.tolist()):
+            queried[b].append(keys[k])
+            measured[b][keys[k]] = v
+        for n, net in enumerate(nets):
+            held = plan.holds[n, best]
+            if not held.any():
+                continue
+            images, nodes = active[held], best[held]
+            present = value[held] > thresholds[n, nodes]
+            if positive_only:
+                images, nodes, present = images[present], nodes[present], present[present]
+                if not len(images):
+                    continue
+            trial = states[n][images]
+            trial[np.arange(len(images)), plan.position[n, nodes]] = present
+            inference = net.inference
+            results = [inference.evaluate(row) for row in trial]
+            posterior = np.array([r[0] for r in results])
+            possible = posterior == posterior  # not NaN: the evidence is possible
+            if not possible.all():
+                images, trial, posterior = images[possible], trial[possible], posterior[possible]
+                results = [r for r, ok in zip(results, possible.tolist()) if ok]
+                if not len(images):
+                    continue
+            states[n][images], belief[images, n] = trial, posterior
+            span = slice(start[n], start[n + 1])
+            informative[images, span] = np.where(asked[images, span], 0.0, np.stack([r[1] for r in results]))
+        for b, row in zip(active.tolist(), belief[active].tolist()):
+            beliefs[b].append(dict(zip(labels, row)))
+    out = []
+    for b in range(count):
+        posteriors = beliefs[b][-1]
+        out.append(Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried[b], measured[b], beliefs[b]))
+    return out
