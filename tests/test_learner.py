@@ -10,7 +10,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import in_use
 from ftorch.recognition.environment import ImageSet
-from ftorch.recognition.inference import Recognition, accuracy, residual_entropy
+from ftorch.recognition.inference import Recognition, accuracy, recognize, residual_entropy
 from ftorch.recognition.instances import InstanceList
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.value_cache import ValueCache
@@ -141,9 +141,45 @@ def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
     many = learner.recognize_many(other, range(12))
     one = [learner.recognize(other, j) for j in range(12)]
     assert [(r.recognized, r.queried, r.posteriors) for r in many] == [(r.recognized, r.queried, r.posteriors) for r in one]
+    # the block (alg. 4.4 for all images at once) against the one-image reference on these learned networks
+    features = in_use(learner.networks)
+    table = other.values(features, list(range(12)))
+    for positive_only in (False, True):
+        learner.set_params(evidence="positive" if positive_only else "both")
+        block = learner.recognize_many(other, range(12))
+        for j, got in enumerate(block):
+            alone = recognize(learner.networks, dict(zip(features, table[:, j].tolist())).__getitem__,
+                              max(learner.settings.test_information, 1e-12), positive_only=positive_only)
+            assert (got.queried, got.values, got.beliefs, got.recognized) == (alone.queried, alone.values, alone.beliefs,
+                                                                              alone.recognized)
     after = learner.instances.values_table()
     assert len(learner.instances) == before[0] and learner.presentations == before[2]
     np.testing.assert_array_equal(np.isnan(after), np.isnan(before[1]))
+
+
+@pytest.mark.parametrize("t_ksd", [0.0, 0.6])
+def test_presenting_in_blocks_equals_presenting_one_by_one(shapes, t_ksd, monkeypatch):
+    """present (first recognitions made in blocks while the networks stand) leaves the state that learn
+    called image by image leaves: the same presentations, networks, instances, value cache and
+    generator, through stage-0 and expert cycles; and blocks were used."""
+    import ftorch.recognition.learner as module
+
+    def taught(by_blocks: bool):
+        env = ImageSet(shapes.images[:18], shapes.labels[:18])
+        learner = DistinctiveFeatureLearner.thesis(seed=3)
+        order = torch.Generator().manual_seed(3)
+        out = []
+        for _ in range(4):
+            images = torch.randperm(18, generator=order).tolist()
+            out += learner.present(env, images, t_ksd) if by_blocks else [learner.learn(env, i, t_ksd) for i in images]
+        state = json.dumps(learner.state_dict(training=True, env=env)) + json.dumps(env.cache_state())
+        return [(p.result, p.recognition.queried, p.recognition.beliefs, p.pair, p.ksd) for p in out], state
+
+    kept = []
+    keep = module.Ahead.keep
+    monkeypatch.setattr(module.Ahead, "keep", lambda self, block, signature: kept.append(len(block)) or keep(self, block, signature))
+    assert taught(True) == taught(False)
+    assert max(kept) > 1  # some blocks recognized several images
 
 
 def test_each_value_is_computed_once(shapes, monkeypatch):

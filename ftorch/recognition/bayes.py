@@ -66,6 +66,10 @@ class ClassNetwork:
     :meth:`add_arc`, :meth:`set_threshold`, :meth:`set_cpt`, :meth:`estimate`, the ``prior``
     setter), each of which drops the engine, so that the next query builds it from the network as
     it then stands. CPTs are replaced, never edited in place (they are read-only arrays).
+    ``revision`` counts those changes (thresholds included): equal revisions of one network object
+    mean the same network, so a recognition made at one still holds (the learner's blocks). A CPT or
+    prior replaced by the same bytes, or a threshold by an equal value, is no change: the engine
+    and its memories stay.
     ``table_limit``: linked groups up to this many nodes are compiled to tables (0: all by einsum).
     """
 
@@ -80,6 +84,7 @@ class ClassNetwork:
         self._cpt: dict[Hashable, np.ndarray] = {}  # P(F | class, parents...) indexed [c, p1..pk, f]
         self.parents, self.threshold, self.cpt = (MappingProxyType(d) for d in (self._parents, self._threshold, self._cpt))
         self._inference: ExactInference | None = None
+        self.revision = 0
         self._paths: dict[str, list] = {}  # einsum paths of its large groups, handed to each new engine
         self.prior = np.array([0.5, 0.5])
 
@@ -110,8 +115,15 @@ class ClassNetwork:
     def _put(self, key, table) -> None:
         table = np.array(table, dtype=float)
         table.flags.writeable = False
+        old = self._cpt.get(key)
         self._cpt[key] = table
+        if old is None or old.shape != table.shape or old.tobytes() != table.tobytes():
+            self._changed()  # the same bytes again (a re-count that found the same) change nothing
+
+    def _changed(self) -> None:
+        """Any change: the engine is dropped and the revision counted."""
         self._inference = None
+        self.revision += 1
 
     def set_cpt(self, key: Hashable, table) -> None:
         """Replace node ``key``'s CPT, P(F | class, parents...) indexed [c, p1..pk, f]."""
@@ -124,7 +136,9 @@ class ClassNetwork:
         """Node ``key`` is present where its feature's value exceeds ``value`` (its KSD cut-point)."""
         if key not in self:
             raise ValueError(f"feature {key!r} is not in the network of class {self.label!r}")
-        self._threshold[key] = float(value)
+        old, self._threshold[key] = self._threshold[key], float(value)
+        if old != value:  # recognition only compares values with it
+            self.revision += 1
 
     def add_arc(self, parent: Hashable, child: Hashable) -> None:
         """A feature arc parent -> child; the child's CPT returns to 1/2 until re-estimated."""
@@ -142,8 +156,9 @@ class ClassNetwork:
 
     @prior.setter
     def prior(self, value) -> None:
-        self._prior = np.asarray(value, dtype=float)
-        self._inference = None
+        old, self._prior = getattr(self, "_prior", None), np.asarray(value, dtype=float)
+        if old is None or old.shape != self._prior.shape or old.tobytes() != self._prior.tobytes():
+            self._changed()
 
     def add_feature(self, key: Hashable, parents=(), children=(), threshold: float = 0.5) -> None:
         """Add a feature node with an arc from the class node and the given feature arcs."""
@@ -167,7 +182,7 @@ class ClassNetwork:
         self._features = tuple(k for k in self._features if k != key)
         for table in (self._parents, self._threshold, self._cpt):
             del table[key]
-        self._inference = None
+        self._changed()
         for node, parents in self._parents.items():
             if key in parents:
                 self._parents[node] = tuple(p for p in parents if p != key)

@@ -74,7 +74,7 @@ from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
-from .inference import Outcome, Plan, Recognition, Result, accuracy, outcome, recognize, residual_entropy
+from .inference import Outcome, Plan, Recognition, Result, accuracy, outcome, recognize_block, residual_entropy
 from .instances import InstanceList, are_stored_values
 from .settings import Evidence, LearnerSettings, bits, whole
 from .stages import MAX_CYCLES, Schedule, Stage
@@ -93,6 +93,55 @@ class Presentation(NamedTuple):
     entropy: dict
     pair: tuple | None = None
     ksd: float | None = None
+
+
+class Ahead:
+    """The first recognitions of the presentations still to come in one :meth:`DistinctiveFeatureLearner.present`
+    call, made in blocks and kept while the networks' ``signature`` (network objects and revisions)
+    holds. A block's size adapts to how long blocks last: it doubles after a block was used to its
+    end and halves after a change dropped one, from 1 to ``LIMIT`` (the size changes only the work,
+    never a result)."""
+
+    LIMIT = 64
+
+    def __init__(self, images: list[int]):
+        self.images, self.at = images, 0  # the presentations, and the next one's position
+        self.block: list[Recognition] = []  # recognitions of images[at:at + len(block)]
+        self.signature: tuple | None = None
+        self.size = 2
+
+    def take(self, image: int, signature: tuple) -> Recognition | None:
+        """The next presentation's recognition where the block holds it and the networks are unchanged."""
+        if self.images[self.at] != image:
+            raise ValueError(f"presented image {image}, but {self.images[self.at]} comes next")
+        self.at += 1
+        if self.block and signature == self.signature:
+            rec = self.block.pop(0)
+            if not self.block:
+                self.size = min(2 * self.size, self.LIMIT)
+            return rec
+        if self.block:  # a change dropped the rest
+            self.size = max(self.size // 2, 1)
+        self.block = []
+        return None
+
+    def upcoming(self) -> list[int]:
+        """The images after the current one that the next block would recognize too."""
+        return self.images[self.at:self.at + self.size - 1]
+
+    def following(self, stored: np.ndarray | None) -> list[int]:
+        """Of :meth:`upcoming`, the leading images whose values (``stored``: the cache's (features, images),
+        None without features) are all measured: a block computes no value."""
+        upcoming = self.upcoming()
+        if stored is None:
+            return upcoming
+        missing = np.isnan(stored).any(0)
+        return upcoming[:int(missing.argmax()) if missing.any() else len(upcoming)]
+
+    def keep(self, block: list[Recognition], signature: tuple) -> Recognition:
+        """Keep a new block (the current image's recognition first); returns that first one."""
+        self.block, self.signature = block[1:], signature
+        return block[0]
 
 
 GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
@@ -157,6 +206,7 @@ class DistinctiveFeatureLearner:
         self.generator.manual_seed(self.seed)
         self.networks: dict[Hashable, ClassNetwork] = {}
         self._plan: Plan | None = None  # the networks' structure as alg. 4.4 indexes it, while it lasts
+        self._ahead: Ahead | None = None  # first recognitions of the presentations to come (:meth:`present`)
         self.counting = Counting(self.settings.calibrate)
         self.candidates = CandidateGenerator(self.generator, self.settings.primitives)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
@@ -241,8 +291,7 @@ class DistinctiveFeatureLearner:
             start = len(self.images_)
             added = self.images_.extended(new)
         self.images_ = added
-        for i in range(start, len(added)):
-            self.learn(added, i, t_ksd)
+        self.present(added, range(start, len(added)), t_ksd)
         return self
 
     def predict(self, images) -> list[frozenset]:
@@ -287,15 +336,11 @@ class DistinctiveFeatureLearner:
 
     def _recognize_many(self, env: ImageSet, images, threshold: float) -> list[Recognition]:
         images = [env.index(i) for i in images]
-        features = in_use(self.networks)
+        features = in_use(self.networks)  # the plan's keys, in their order
         table = env.values(features, images) if features else np.zeros((0, len(images)))
-        out = []
         self._plan = Plan.of(self.networks, self._plan)
-        for k in range(len(images)):
-            column = dict(zip(features, table[:, k].tolist()))
-            out.append(recognize(self.networks, column.__getitem__, max(threshold, 1e-12),
-                                 positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan))
-        return out
+        return recognize_block(self.networks, table, max(threshold, 1e-12),
+                               positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan)
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
     def reestimate(self) -> None:
@@ -324,7 +369,7 @@ class DistinctiveFeatureLearner:
             if label not in self.networks:
                 self.networks[label] = ClassNetwork(label)
         self.counting.instances.add(image, true)
-        first = self._training_recognition(env, image)
+        first = self._first_recognition(env, image)
         entropy = residual_entropy(first)
         if outcome(first.recognized, true) is Outcome.CORRECT:
             return self._expert(env, image, first, entropy, t_ksd)
@@ -339,6 +384,48 @@ class DistinctiveFeatureLearner:
         learned = self._search(env, image, char, disc, char_is_true, t_ksd,
                                lambda after: (char in after.recognized) == char_is_true)
         return Presentation(first, Result.LEARNED if learned else Result.FAILED, entropy)
+
+    def present(self, env: ImageSet, images, t_ksd: float = 0.0) -> list[Presentation]:
+        """Present ``images`` in their order, each by :meth:`learn`: one cycle of alg. 5.3.
+
+        Their first recognitions (alg. 4.7 step 1) are made in blocks (:class:`Ahead`): a recognition
+        depends only on the networks (structure, CPTs, thresholds, prior), the learner's settings and
+        the image's feature values, so while no network changes (the same network objects at the
+        same :attr:`~ftorch.recognition.bayes.ClassNetwork.revision`) the recognitions of the next
+        images, made together (:func:`~ftorch.recognition.inference.recognize_block`, equal to one
+        image's), are the ones each presentation would make; a block is made only where every value
+        it reads is in the value cache, so that it computes no value (the cache's rule keeps
+        values, not only results, exact); any change drops what remains of it. So the presentations,
+        the learner's state and every report are those of :meth:`learn` called image by image (tested).
+        """
+        images = [env.index(i) for i in images]
+        self._ahead = Ahead(images)
+        try:
+            return [self.learn(env, i, t_ksd) for i in images]
+        finally:
+            self._ahead = None
+
+    def _first_recognition(self, env: ImageSet, image: int) -> Recognition:
+        """The training recognition of a presentation's start: from the block :meth:`present` made
+        ahead where it still holds, else made now (with the next images' where it may be: :class:`Ahead`)."""
+        ahead = self._ahead
+        if ahead is None:
+            return self._training_recognition(env, image)
+        signature = tuple((label, net, net.revision) for label, net in self.networks.items())
+        rec = ahead.take(image, signature)
+        if rec is None:
+            features = in_use(self.networks)
+            table = env.values(features, [image]) if features else np.zeros((0, 1))  # as one image's recognition asks
+            following = ahead.following(env.cache.stored(features, ahead.upcoming()) if features else None)
+            if following:
+                table = np.concatenate([table, env.values(features, following) if features else np.zeros((0, len(following)))], 1)
+            self._plan = Plan.of(self.networks, self._plan)
+            block = recognize_block(self.networks, table, max(self.settings.min_information, 1e-12),
+                                    positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan)
+            rec = ahead.keep(block, signature)
+        self.counting.record(image, rec)
+        self._mark_usage(rec.queried)
+        return rec
 
     def _expert(self, env: ImageSet, image: int, rec: Recognition, entropy: dict, t_ksd: float) -> Presentation:
         """Alg. 5.1 steps 2-4 on a correctly recognized image."""

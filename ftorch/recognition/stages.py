@@ -187,11 +187,13 @@ class Schedule:
         results, ksd_min = [], 1.0
         views = len(env) // versions
         shown = [i for i in indices if i < views]
+        presented = []
         for k in torch.randperm(len(shown), generator=order).tolist():
             i = shown[k]
             if versions > 1:
                 i += views * int(torch.randint(versions, (), generator=order))
-            p = learner.learn(env, i, self.progress.t_ksd)
+            presented.append(i)
+        for p in learner.present(env, presented, self.progress.t_ksd):
             results.append(p.result)
             if p.ksd is not None:
                 ksd_min = min(ksd_min, p.ksd)
