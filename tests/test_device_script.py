@@ -25,12 +25,13 @@ def test_the_device_script_runs_each_step_with_commands_that_parse(tmp_path):
     assert done.returncode == 0, done.stderr
     summary = done.stdout.split("=== summary\n")[1].splitlines()
     assert [line.split(":")[0] for line in summary] == [
-        "CUDA test", "COIL-6 128x128 on cuda", "feature benchmark on cuda", "COIL-6 128x128 on cpu", "feature benchmark on cpu"]
+        "CUDA test", "COIL-6 128x128 on cuda", "COIL-6 10 seeds 8 workers on cuda", "feature benchmark on cuda",
+        "COIL-6 128x128 on cpu", "feature benchmark on cpu"]
     assert all(line.endswith("exit 0") for line in summary)
     assert (tmp_path / "out" / "device.log").read_text() == done.stdout
 
     modules = [argv[1:] for argv in map(json.loads, calls.read_text().splitlines()) if argv[0] == "-m"]
-    assert [m[0] for m in modules] == ["pytest", "training.run", "training.bench", "training.run", "training.bench"]
+    assert [m[0] for m in modules] == ["pytest", "training.run", "training.run", "training.bench", "training.run", "training.bench"]
     test_file, selection = modules[0][-3], modules[0][-1]
     assert f"def test_{selection}" in (ROOT / test_file).read_text()
     text = SCRIPT.read_text()

@@ -173,6 +173,10 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     a["folds"][0]["machine"] = {**a["machine"], "cpu": "Another CPU"}  # as a Ray node of another kind would report
     write_markdown(tmp_path / "elsewhere.md", a, [])
     assert "Folds trained on other machines: fold 1 on Another CPU, " in (tmp_path / "elsewhere.md").read_text()
+    assert "gpu_memory_mib" not in a and "gpu_memory_mib" not in a["folds"][0] and "GPU memory" not in markdown
+    a["gpu_memory_mib"] = {"fold 1 seed 3": 812.4, "fold 1 seed 4": 790.0}  # as a run on a GPU reports each task
+    write_markdown(tmp_path / "gpu.md", a, [])
+    assert "Peak GPU memory per task (torch's allocator, MiB): fold 1 seed 3 812; fold 1 seed 4 790." in (tmp_path / "gpu.md").read_text()
     assert "| task | cls. | fold | acc." in markdown and "amb. | cnf. | ign. | # feats. BN |" in markdown
     for figure in ("fold1/features.png", "fold1/con6_features.png"):
         assert figure in markdown and cv2.imread(str(tmp_path / "a" / figure)) is not None

@@ -38,6 +38,21 @@ def machine(device: torch.device) -> dict:
     return out
 
 
+def start_memory(device: torch.device) -> None:
+    """Count a task's peak GPU memory from now on (:func:`peak_memory`); nothing on a CPU."""
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+
+
+def peak_memory(device: torch.device) -> dict:
+    """``{"gpu_memory_mib": peak}``: the GPU memory this process's tensors held at most since
+    :func:`start_memory` (torch's allocator; the CUDA context, some hundred MiB per process, comes on
+    top), so that runs sharing one GPU (``--workers N --device cuda``) can be sized; {} on a CPU."""
+    if device.type != "cuda":
+        return {}
+    return {"gpu_memory_mib": round(torch.cuda.max_memory_allocated(device) / 2**20, 1)}
+
+
 def described(machine: dict) -> str:
     """:func:`machine`'s entry in one line, as reports print it."""
     gpu = f"{machine['gpu']}; " if "gpu" in machine else ""

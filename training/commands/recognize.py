@@ -19,7 +19,7 @@ from ftorch.recognition.settings import Evidence, LearnerSettings
 from ftorch.space.draw import save_rgb
 from ftorch.space.record import ImageRecords, require_memory
 from training.cli.arguments import at_least, number
-from training.cli.devices import machine, resolve_device
+from training.cli.devices import machine, peak_memory, resolve_device, start_memory
 from training.cli.jobs import check_seeds, device_options, run_folders, run_jobs, run_options
 from training.cli.outputs import Ledger, RunFolder
 from training.cli.parallel import reach_ray, share_idle_cores
@@ -196,6 +196,7 @@ def fold_task(job: dict) -> dict:
     runner's), and its figures; picklable, for local processes and Ray."""
     args = argparse.Namespace(**job["args"])
     device = resolve_device(args.device)
+    start_memory(device)
     task = LOADED.task(args, device)
     space = FeatureSpace().to(device)
     out, k, ledger = Path(job["out"]), job["fold"], job["ledger"]
@@ -206,12 +207,13 @@ def fold_task(job: dict) -> dict:
     ledger.files(*bif.values())
     for label, net in learner.networks.items():
         write_text(bif[label], net.to_bif())
-    return {"entry": {**entry, "machine": machine(device)}, "figures": figures}
+    return {"entry": {**entry, "machine": machine(device), **peak_memory(device)}, "figures": figures}
 
 
-def check_inputs(task: Task, folds: int, augment: int, device: torch.device) -> None:
+def check_inputs(task: Task, folds: int, augment: int, device: torch.device, processes: int = 1) -> None:
     """Every input of a run, checked before anything is removed or computed (training/cli/outputs.py):
-    every class trains in every fold, every image loads, and the view sets' pyramids fit in memory."""
+    every class trains in every fold, every image loads, and the view sets' pyramids fit in memory
+    (on a GPU that ``processes`` share, each holds its own: :func:`shared_records`)."""
     task.check_folds(folds)
     shapes = task.shapes()
     space = FeatureSpace()
@@ -219,7 +221,9 @@ def check_inputs(task: Task, folds: int, augment: int, device: torch.device) -> 
     need = sum(space.pyramid_nbytes([shapes[i] for i in view]) for view in sets)
     need += augment * max(space.pyramid_nbytes([shapes[i] for i in task.fold(k)[0]]) for k in range(1, folds + 1))
     height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
-    require_memory(need, device, f"the {len(shapes)} images of the task (up to {height}x{width} pixels)")
+    copies = processes if device.type == "cuda" else 1
+    require_memory(need * copies, device, f"the {len(shapes)} images of the task (up to {height}x{width} pixels)"
+                   + (f" in each of {copies} processes" if copies > 1 else ""))
 
 
 def recognize_command(args, incremental: bool = False) -> int:
@@ -237,7 +241,7 @@ def recognize_command(args, incremental: bool = False) -> int:
         torch.manual_seed(args.seed)
         LOADED.clear()  # each command loads its data afresh
         task = LOADED.task(args, device)
-        check_inputs(task, args.folds, args.augment, device)
+        check_inputs(task, args.folds, args.augment, device, 1 if args.ray else min(args.workers, args.folds + args.seeds - 1))
         folder.clear()  # the inputs are good: only now is an old run replaced
         return _recognize(args, incremental, device, task, folder, start)
 
@@ -277,6 +281,8 @@ def _recognize(args, incremental: bool, device: torch.device, task: Task, folder
     seconds = time.perf_counter() - start
     report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), machine(device), seconds,
                           folds, seeds)
+    if device.type == "cuda":  # what each task (one process's at a time) held on the GPU it shared
+        report["gpu_memory_mib"] = {name: r["entry"]["gpu_memory_mib"] for name, r in zip(names, results)}
     if args.peers:
         report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
     grew = report.get("growth", {}).get("exponent") is not None

@@ -287,10 +287,12 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     incremental = report["config"].get("incremental")
     elsewhere = [f"fold {f['fold']} on {described(f['machine'])}" for f in report["folds"]
                  if f["machine"] != report["machine"]]  # with --ray, a fold may train on another node
+    memory = "; ".join(f"{task} {mib:.0f}" for task, mib in report.get("gpu_memory_mib", {}).items())
     lines = [f"# Recognition report: {report['task']}{' (incremental, alg. 5.4)' if incremental else ''}", "",
              f"{len(classes)} classes, seed {report['seed']}, device {report['device']} "
              f"({described(report['machine'])}), {report['seconds']:.1f} s.", "",
-             *([f"Folds trained on other machines: {'; '.join(elsewhere)}.", ""] if elsewhere else []), COLUMNS, ""]
+             *([f"Folds trained on other machines: {'; '.join(elsewhere)}.", ""] if elsewhere else []),
+             *([f"Peak GPU memory per task (torch's allocator, MiB): {memory}.", ""] if memory else []), COLUMNS, ""]
     expert = any(len(f["stages"]) > 1 for f in report["folds"])
     if not incremental:
         lines += ["## Novices: after stage 0 (table 4.2 form)", "", *summary_table(report, 0), "",
