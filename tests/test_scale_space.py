@@ -6,27 +6,30 @@ import pytest
 import scipy.ndimage as ndi
 import torch
 
-from ftorch import ScaleSpace
+from ftorch import InputError, ScaleSpace
 from ftorch.space.kernels import kernel_radius
 from ftorch.space.reference import scipy_basis
+from ftorch.space.scale_space import Pyramid
 from ftorch.space.steering import steer, steer_block
 
 from .conftest import random_image
 
 
-def test_responses_equal_scipy_everywhere_in_float64():
+@pytest.mark.parametrize("method", list(Pyramid))
+def test_responses_equal_scipy_everywhere_in_float64(method):
     image = random_image(40, 52, seed=1)
-    out = ScaleSpace()(image)
+    out = ScaleSpace(method=method)(image)
     assert out.responses.shape == (1, 7, 5, 40, 52)
     for k, sigma in enumerate(out.sigmas.tolist()):
         expected = scipy_basis(image.numpy(), sigma)
         np.testing.assert_allclose(out.responses[0, k].numpy(), expected, rtol=0, atol=1e-12)
 
 
-def test_responses_equal_scipy_on_interior_in_float32():
+@pytest.mark.parametrize("method", list(Pyramid))
+def test_responses_equal_scipy_on_interior_in_float32(method):
     """Tolerance: 2e-6 of the level's largest response, on pixels where the kernel fits."""
     image = random_image(64, 64, seed=2, dtype=torch.float32)
-    out = ScaleSpace()(image[None])
+    out = ScaleSpace(method=method)(image[None])
     for k, sigma in enumerate(out.sigmas.tolist()):
         expected = scipy_basis(image.double().numpy(), sigma)
         inside = out.valid[k].numpy()
@@ -34,6 +37,56 @@ def test_responses_equal_scipy_on_interior_in_float32():
             continue
         err = np.abs(out.responses[0, k].double().numpy() - expected)[:, inside].max()
         assert err <= 2e-6 * np.abs(expected).max(), (k, err)
+
+
+def test_the_methods_agree_on_a_batch_beyond_one_reflection_and_under_autograd():
+    """Kernels wider than the image (truncate 5: radius 20 at sigma 4 on 16 rows) reflect more than once."""
+    images = torch.rand(3, 1, 16, 20, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
+    band = ScaleSpace(truncate=5.0)(images)
+    conv = ScaleSpace(truncate=5.0, method="conv")(images)
+    assert conv.responses.shape == band.responses.shape == (3, 5, 5, 16, 20)
+    torch.testing.assert_close(conv.responses, band.responses, rtol=0, atol=1e-12)
+    assert torch.equal(conv.valid, band.valid) and torch.equal(conv.sigmas, band.sigmas)
+    for k, sigma in enumerate(band.sigmas.tolist()):
+        expected = scipy_basis(images[1, 0].numpy(), sigma, truncate=5.0)
+        np.testing.assert_allclose(conv.responses[1, k].numpy(), expected, rtol=0, atol=1e-12)
+    # a linear map: its gradient for any weighting equals the band path's, which gradcheck checks below
+    pixels = images.clone().requires_grad_()
+    weights = torch.randn(band.responses.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+    (grad_conv,) = torch.autograd.grad((ScaleSpace(truncate=5.0, method="conv")(pixels).responses * weights).sum(), pixels)
+    (grad_band,) = torch.autograd.grad((ScaleSpace(truncate=5.0)(pixels).responses * weights).sum(), pixels)
+    torch.testing.assert_close(grad_conv, grad_band, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["fft", "", None, 3, "BAND"])
+def test_an_unknown_method_is_an_input_error(method):
+    with pytest.raises(InputError, match="method must be one of band, conv"):
+        ScaleSpace(method=method)
+    space = ScaleSpace()
+    with pytest.raises(InputError, match="method must be one of band, conv"):
+        space.method = method
+    assert space.method is Pyramid.BAND
+
+
+def test_the_default_method_is_the_band_matrices():
+    assert ScaleSpace().method is Pyramid.BAND
+    space = ScaleSpace(method="conv")
+    assert space.method is Pyramid.CONV and isinstance(space.method, Pyramid)
+
+
+def test_the_conv_bank_asks_cudnn_for_full_float32_and_gives_the_setting_back():
+    from ftorch.space.scale_space import _ieee_convolutions
+
+    conv = torch.backends.cudnn.conv
+    before = conv.fp32_precision
+    with _ieee_convolutions(torch.device("cuda")):
+        assert conv.fp32_precision == "ieee"
+    assert conv.fp32_precision == before
+    with pytest.raises(KeyError), _ieee_convolutions(torch.device("cuda")):
+        raise KeyError
+    assert conv.fp32_precision == before
+    with _ieee_convolutions(torch.device("cpu")):
+        assert conv.fp32_precision == before
 
 
 def rotated_kernel(sigma: float, theta: float, order: int, truncate: float = 3.0) -> np.ndarray:

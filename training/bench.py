@@ -1,9 +1,10 @@
 """Benchmarks: ``python -m training.bench features [--quick] [--device cpu|cuda] --json PATH``.
 
 Everything is measured in one run against baselines computed in the same run:
-- pyramid: the five basis maps at all scales for 32 images of 128x128, ftorch vs OpenCV's
-  ``cv2.sepFilter2D`` with the very same sampled kernels (same radius, same reflect border);
-  both are checked against scipy at the tests' tolerance on one image.
+- pyramid: the five basis maps at all scales for 32 images of 128x128, ftorch (the default band
+  matrices) vs OpenCV's ``cv2.sepFilter2D`` with the very same sampled kernels (same radius, same
+  reflect border) and vs ftorch's conv2d bank (``Pyramid.CONV``); all three are checked against
+  scipy at the tests' tolerance on one image, and the conv2d bank against the band matrices on all.
 - record: the whole per-image record (pyramid, scale functions, salient points, descriptors).
 - texel / edgel_pair / edgel3 / geometric3 / boolean: (feature, image) evaluations per second,
   the ratio to the per-point reference loop of ``ftorch.space.reference`` timed on a subset, and the
@@ -42,6 +43,7 @@ from ftorch.space.features import Conjunction, Disjunction
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.kernels import derivative_kernels
 from ftorch.space.reference import reference_values, scipy_basis
+from ftorch.space.scale_space import Pyramid
 from training.cli.arguments import Parser
 from training.cli.devices import resolve_device
 from training.cli.outputs import writable_file
@@ -119,21 +121,30 @@ def worst_error(maps: np.ndarray, image: np.ndarray, sigmas: list[float], valid:
 
 
 def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> dict:
-    space = ScaleSpace().to(device)
+    space = ScaleSpace(method=Pyramid.BAND).to(device)
+    conv = ScaleSpace(method=Pyramid.CONV).to(device)
     batch = torch.from_numpy(images).to(device)
     sigmas = [space.sigma(k) for k in range(space.num_levels(*images.shape[1:]))]
-    (seconds, out), (cv_seconds, cv_maps) = _interleaved(
-        [lambda: space(batch), lambda: opencv_basis(images, sigmas, space.truncate)], repeats, device)
+    (seconds, out), (conv_seconds, conv_out), (cv_seconds, cv_maps) = _interleaved(
+        [lambda: space(batch), lambda: conv(batch), lambda: opencv_basis(images, sigmas, space.truncate)], repeats, device)
     valid = out.valid.cpu().numpy()
     ours_err = worst_error(out.responses[0].cpu().numpy(), images[0], sigmas, valid, space.truncate)
+    conv_err = worst_error(conv_out.responses[0].cpu().numpy(), images[0], sigmas, valid, space.truncate)
     cv_err = worst_error(cv_maps[0], images[0], sigmas, valid, space.truncate)
+    # conv2d bank vs band matrices on every image and pixel, relative to each level's largest response
+    level_max = out.responses.abs().amax(dim=(0, 2, 3, 4)).double()
+    difference = (conv_out.responses - out.responses).abs().amax(dim=(0, 2, 3, 4)).double()
     n = len(images)
     return {
-        "batch": n, "size": list(images.shape[1:]), "levels": len(sigmas),
+        "batch": n, "size": list(images.shape[1:]), "levels": len(sigmas), "default": str(ScaleSpace().method),
         "images_per_s": n / seconds, "opencv_images_per_s": n / cv_seconds,
         "ratio_vs_opencv": cv_seconds / seconds,
-        "max_rel_error": ours_err, "opencv_max_rel_error": cv_err, "tolerance": TOLERANCE,
-        "within_tolerance": ours_err <= TOLERANCE and cv_err <= TOLERANCE,
+        "conv_images_per_s": n / conv_seconds, "conv_time_ratio_vs_band": conv_seconds / seconds,
+        "conv_max_difference_vs_band": float(difference.max()),
+        "conv_max_rel_difference_vs_band": float((difference / level_max).max()),
+        "conv_bitwise_equal_to_band": bool(torch.equal(conv_out.responses, out.responses)),
+        "max_rel_error": ours_err, "conv_max_rel_error": conv_err, "opencv_max_rel_error": cv_err, "tolerance": TOLERANCE,
+        "within_tolerance": max(ours_err, conv_err, cv_err) <= TOLERANCE,
     }
 
 
@@ -335,8 +346,12 @@ def print_report(report: dict) -> None:
     print(f"device {report['device']}, torch {report['torch']}, {report['threads']} threads")
     print(f"pyramid   {p['batch']}x{p['size'][0]}x{p['size'][1]}, {p['levels']} levels: "
           f"{p['images_per_s']:8.1f} images/s  opencv {p['opencv_images_per_s']:8.1f}  ratio {p['ratio_vs_opencv']:.2f}")
-    print(f"          max error vs scipy {p['max_rel_error']:.1e} (opencv {p['opencv_max_rel_error']:.1e}), "
-          f"tolerance {p['tolerance']:.0e}: {'ok' if p['within_tolerance'] else 'EXCEEDED'}")
+    print(f"          conv2d bank {p['conv_images_per_s']:8.1f} images/s, time conv / band "
+          f"{p['conv_time_ratio_vs_band']:.2f} (default: {p['default']}), max difference vs band "
+          f"{p['conv_max_difference_vs_band']:.1e} ({p['conv_max_rel_difference_vs_band']:.1e} of the level's largest), "
+          f"{'bit for bit' if p['conv_bitwise_equal_to_band'] else 'not bit for bit'}")
+    print(f"          max error vs scipy {p['max_rel_error']:.1e} (conv2d {p['conv_max_rel_error']:.1e}, opencv "
+          f"{p['opencv_max_rel_error']:.1e}), tolerance {p['tolerance']:.0e}: {'ok' if p['within_tolerance'] else 'EXCEEDED'}")
     r = report["record"]
     print(f"record    {r['images_per_s']:8.1f} images/s  ({r['texels_per_image']:.0f} texels, "
           f"{r['edgels_per_image']:.0f} edgels per image)")

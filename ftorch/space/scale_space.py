@@ -2,25 +2,66 @@
 
 For an image whose shorter side is m pixels the levels are sigma_k = 2^(k/2), k = 0..K, with
 sigma_K <= m/4 (DESIGN.md). At each level the five steerable basis responses (G1@0, G1@pi/2,
-G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels. Each 1-D pass is a
-matrix product with a band matrix that has the symmetric ('reflect') boundary folded in, so
-all images, levels and kernels of one pass are a few large GEMMs: the same sums as a direct
-convolution, in another order (agreement with scipy is tested to 1e-10 in float64).
+G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels, in one of two ways
+(:class:`Pyramid`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
+
+- ``Pyramid.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
+  the boundary folded in, so all images, levels and kernels of one pass are a few large GEMMs.
+- ``Pyramid.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
+  of the level's three kernels g, g', g'' across the rows and a (k, 1) bank of the same three
+  down the columns, the three horizontal maps folded into the batch (one plain call measured
+  faster on the CPU than a grouped call with two kernels per group, though it computes 9 maps
+  for the 5 needed). The padding is gathered by index, as torch's own 'reflect' pad leaves the
+  edge pixel out.
+
+Both compute the same sums as a direct convolution, in different orders: they agree with scipy to
+1e-12 in float64 (tested) but not bit for bit with each other in float32. The band matrices stay
+the default for two reasons: they are faster on the CPU (``python -m training.bench features``
+times both on 32 images of 128x128, 11 levels; the figures are in docs/benchmark.md), and the
+project's reports are kept byte for byte, which another summation order would break.
 """
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
+from enum import StrEnum
 
+import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..errors import InputError
 from ..images import as_image_batch
-from .kernels import band_matrix, derivative_kernels, kernel_radius
+from .kernels import band_matrix, derivative_kernels, kernel_radius, reflect_index
 from .steering import cartesian_from_basis
 
 _SQRT3_2 = math.sqrt(3) / 2
+_PLANS = 8  # cached plans per module (image size, device, dtype)
+
+
+@contextmanager
+def _ieee_convolutions(device: torch.device):
+    """On CUDA, cuDNN runs float32 convolutions in TF32 unless told otherwise (errors near 1e-3, beyond
+    the tests' 2e-6); the band path's GEMMs are full float32, and so is the conv2d bank inside this."""
+    if device.type != "cuda":
+        yield
+        return
+    conv = torch.backends.cudnn.conv
+    saved = conv.fp32_precision
+    conv.fp32_precision = "ieee"
+    try:
+        yield
+    finally:
+        conv.fp32_precision = saved
+
+
+class Pyramid(StrEnum):
+    """How :class:`ScaleSpace` runs its separable passes (the module docstring says why BAND is the default)."""
+
+    BAND = "band"  # products with band matrices that have the reflecting boundary folded in
+    CONV = "conv"  # torch.nn.functional.conv2d banks on padding gathered by reflection
 
 
 @dataclass
@@ -45,20 +86,34 @@ class ScaleSpace(nn.Module):
 
     ``truncate``: kernel radius in sigmas (radius = int(truncate*sigma + 0.5)); a point at level k
     is inside the image's valid region when the level-k kernel fits entirely inside the image.
-    Kernels live in buffers and follow ``.to(device)``; the band matrices built from them are
-    cached per (size, device, dtype).
+    ``method``: :class:`Pyramid` or its value ('band', 'conv'); both give the same responses to
+    rounding. Kernels live in buffers and follow ``.to(device)``; the band matrices or conv2d
+    weights built from them are cached per (size, device, dtype).
     """
 
-    def __init__(self, truncate: float = 3.0, max_levels: int = 20):
+    def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: Pyramid | str = Pyramid.BAND):
         super().__init__()
         if not truncate > 0:
             raise InputError(f"truncate must be positive, got {truncate}")
         self.truncate = float(truncate)
         self.max_levels = int(max_levels)
+        self.method = method
         for k in range(self.max_levels):
             kernels = torch.from_numpy(derivative_kernels(self.sigma(k), self.truncate))
             self.register_buffer(f"kernels_{k}", kernels, persistent=False)
         self._matrices: dict = {}
+        self._convs: dict = {}
+
+    @property
+    def method(self) -> Pyramid:
+        return self._method
+
+    @method.setter
+    def method(self, value: Pyramid | str) -> None:
+        try:
+            self._method = Pyramid(value)
+        except ValueError:
+            raise InputError(f"method must be one of {', '.join(Pyramid)}, got {value!r}") from None
 
     @staticmethod
     def sigma(level: float) -> float:
@@ -100,7 +155,7 @@ class ScaleSpace(nn.Module):
         """
         key = (height, width, levels, str(device), dtype)
         if key not in self._matrices:
-            if len(self._matrices) >= 8:
+            if len(self._matrices) >= _PLANS:
                 self._matrices.pop(next(iter(self._matrices)))
             plan = []
             for k in range(levels):
@@ -124,8 +179,27 @@ class ScaleSpace(nn.Module):
             self._matrices[key] = plan
         return self._matrices[key]
 
+    def _conv_weights(self, height: int, width: int, levels: int, device, dtype):
+        """Per level: the column and row indices of the reflect-padded image ((W + 2r,) and (H + 2r,)),
+        and the level's kernels g, g', g'' flipped (conv2d correlates) as (3, 1, 1, k) and (3, 1, k, 1)."""
+        key = (height, width, levels, str(device), dtype)
+        if key not in self._convs:
+            if len(self._convs) >= _PLANS:
+                self._convs.pop(next(iter(self._convs)))
+            plan = []
+            for k in range(levels):
+                kern = getattr(self, f"kernels_{k}").detach().to(device=device, dtype=dtype).flip(-1)
+                r = (kern.shape[1] - 1) // 2
+                columns = torch.from_numpy(reflect_index(np.arange(-r, width + r), width)).to(device)
+                rows = torch.from_numpy(reflect_index(np.arange(-r, height + r), height)).to(device)
+                plan.append((columns, rows, kern[:, None, None, :].contiguous(), kern[:, None, :, None].contiguous()))
+            self._convs[key] = plan
+        return self._convs[key]
+
     def forward(self, images) -> ScaleSpaceOutput:
         x = as_image_batch(images)[:, 0]
+        if self._method is Pyramid.CONV:
+            return self._forward_conv(x)
         batch, height, width = x.shape
         levels = self.num_levels(height, width)
         plan = self._band_matrices(height, width, levels, x.device, x.dtype)
@@ -151,5 +225,31 @@ class ScaleSpace(nn.Module):
                 iso = torch.add(gxx4, gyy, out=level[:, 3])
                 torch.sub(iso, gxy, out=level[:, 4])
                 iso.add_(gxy)
-        sigmas = torch.tensor([self.sigma(k) for k in range(levels)], device=x.device, dtype=x.dtype)
-        return ScaleSpaceOutput(out, sigmas, self.valid_mask(height, width, levels, x.device))
+        return self._output(out, levels)
+
+    def _forward_conv(self, x: Tensor) -> ScaleSpaceOutput:
+        batch, height, width = x.shape
+        levels = self.num_levels(height, width)
+        plan = self._conv_weights(height, width, levels, x.device, x.dtype)
+        out = torch.empty(batch, levels, 5, height, width, device=x.device, dtype=x.dtype)
+        x = x[:, None]
+        for k, (columns, rows, horizontal, vertical) in enumerate(plan):
+            with _ieee_convolutions(x.device):
+                h = F.conv2d(x.index_select(3, columns), horizontal)  # (B, 3, H, W): g, g', g'' along x
+                h = h.index_select(2, rows).view(batch * 3, 1, -1, width)
+                v = F.conv2d(h, vertical).view(batch, 3, 3, height, width)  # [x kernel, y kernel]
+            gx, gy, gxx, gxy, gyy = v[:, 1, 0], v[:, 0, 1], v[:, 2, 0], v[:, 1, 1], v[:, 0, 2]
+            iso = 0.25 * gxx + 0.75 * gyy
+            mixed = _SQRT3_2 * gxy
+            level = out[:, k]
+            level[:, 0] = gx
+            level[:, 1] = gy
+            level[:, 2] = gxx
+            level[:, 3] = iso + mixed
+            level[:, 4] = iso - mixed
+        return self._output(out, levels)
+
+    def _output(self, out: Tensor, levels: int) -> ScaleSpaceOutput:
+        height, width = out.shape[-2:]
+        sigmas = torch.tensor([self.sigma(k) for k in range(levels)], device=out.device, dtype=out.dtype)
+        return ScaleSpaceOutput(out, sigmas, self.valid_mask(height, width, levels, out.device))
