@@ -93,7 +93,8 @@ class Plan:
     """The networks' structure as recognition indexes it: every feature once (``keys``), the
     networks holding each, and each network's slots in the side-by-side information array. It
     depends only on the networks and their feature tuples (not on CPTs or thresholds), so its owner
-    (a learner, for all its recognitions) reuses it while those are the same objects (``signature``)."""
+    (a learner, for all its recognitions) reuses it while those are the same (``signature``); a
+    learner keeps the last two, since a search adds a candidate and removes it again."""
 
     def __init__(self, networks: dict[Hashable, ClassNetwork], signature: tuple):
         self.signature = signature
@@ -129,10 +130,10 @@ class Plan:
         return tuple((label, net, net.features) for label, net in networks.items())
 
     @classmethod
-    def of(cls, networks: dict[Hashable, ClassNetwork], last: "Plan | None" = None) -> "Plan":
-        """The plan of ``networks``: ``last`` where it still fits them, else a new one."""
+    def of(cls, networks: dict[Hashable, ClassNetwork], *known: "Plan | None") -> "Plan":
+        """The plan of ``networks``: one of the ``known`` plans where it fits them, else a new one."""
         signature = cls.signature(networks)
-        return last if last is not None and last.signature == signature else cls(networks, signature)
+        return next((plan for plan in known if plan is not None and plan.signature == signature), None) or cls(networks, signature)
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],

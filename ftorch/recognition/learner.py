@@ -129,12 +129,10 @@ class Ahead:
         """The images after the current one that the next block would recognize too."""
         return self.images[self.at:self.at + self.size - 1]
 
-    def following(self, stored: np.ndarray | None) -> list[int]:
-        """Of :meth:`upcoming`, the leading images whose values (``stored``: the cache's (features, images),
-        None without features) are all measured: a block computes no value."""
+    def following(self, stored: np.ndarray) -> list[int]:
+        """Of :meth:`upcoming`, the leading images whose values (``stored``: the cache's (features,
+        images)) are all measured: a block computes no value."""
         upcoming = self.upcoming()
-        if stored is None:
-            return upcoming
         missing = np.isnan(stored).any(0)
         return upcoming[:int(missing.argmax()) if missing.any() else len(upcoming)]
 
@@ -151,6 +149,11 @@ MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed
 def _cached(env: ImageSet | None, features: list, images: list) -> np.ndarray | None:
     """``env``'s cached values (images, features), the reference of relative instance values; None without ``env``."""
     return None if env is None else env.cache.stored(features, images).T
+
+
+def _values(env: ImageSet, features: list, images: list[int]) -> np.ndarray:
+    """``env.values(features, images)``, (0, len(images)) without features."""
+    return env.values(features, images) if features else np.zeros((0, len(images)))
 
 
 def _label(value):
@@ -205,7 +208,7 @@ class DistinctiveFeatureLearner:
         """The state before any presentation: no network, no instance, the generator at ``seed``."""
         self.generator.manual_seed(self.seed)
         self.networks: dict[Hashable, ClassNetwork] = {}
-        self._plan: Plan | None = None  # the networks' structure as alg. 4.4 indexes it, while it lasts
+        self._plans: list[Plan] = []  # the networks' structures as alg. 4.4 indexes them, the latest first
         self._ahead: Ahead | None = None  # first recognitions of the presentations to come (:meth:`present`)
         self.counting = Counting(self.settings.calibrate)
         self.candidates = CandidateGenerator(self.generator, self.settings.primitives)
@@ -336,11 +339,15 @@ class DistinctiveFeatureLearner:
 
     def _recognize_many(self, env: ImageSet, images, threshold: float) -> list[Recognition]:
         images = [env.index(i) for i in images]
-        features = in_use(self.networks)  # the plan's keys, in their order
-        table = env.values(features, images) if features else np.zeros((0, len(images)))
-        self._plan = Plan.of(self.networks, self._plan)
+        return self._recognize_table(_values(env, in_use(self.networks), images), threshold)
+
+    def _recognize_table(self, table: np.ndarray, threshold: float) -> list[Recognition]:
+        """Alg. 4.4 on a block of images given their values ``table`` (features in :func:`in_use` order, which
+        is the plan's, x images), stopping at ``threshold`` bits."""
+        plan = Plan.of(self.networks, *self._plans)
+        self._plans = [plan, *(p for p in self._plans if p is not plan)][:2]
         return recognize_block(self.networks, table, max(threshold, 1e-12),
-                               positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan)
+                               positive_only=self.settings.evidence is Evidence.POSITIVE, plan=plan)
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------
     def reestimate(self) -> None:
@@ -406,8 +413,8 @@ class DistinctiveFeatureLearner:
             self._ahead = None
 
     def _first_recognition(self, env: ImageSet, image: int) -> Recognition:
-        """The training recognition of a presentation's start: from the block :meth:`present` made
-        ahead where it still holds, else made now (with the next images' where it may be: :class:`Ahead`)."""
+        """The training recognition of a presentation's start: inside :meth:`present`, from the block
+        made ahead where it still holds, else made now with the next images' (:class:`Ahead`)."""
         ahead = self._ahead
         if ahead is None:
             return self._training_recognition(env, image)
@@ -415,17 +422,12 @@ class DistinctiveFeatureLearner:
         rec = ahead.take(image, signature)
         if rec is None:
             features = in_use(self.networks)
-            table = env.values(features, [image]) if features else np.zeros((0, 1))  # as one image's recognition asks
-            following = ahead.following(env.cache.stored(features, ahead.upcoming()) if features else None)
+            table = _values(env, features, [image])  # asked for as one image's recognition asks
+            following = ahead.following(env.cache.stored(features, ahead.upcoming()))
             if following:
-                table = np.concatenate([table, env.values(features, following) if features else np.zeros((0, len(following)))], 1)
-            self._plan = Plan.of(self.networks, self._plan)
-            block = recognize_block(self.networks, table, max(self.settings.min_information, 1e-12),
-                                    positive_only=self.settings.evidence is Evidence.POSITIVE, plan=self._plan)
-            rec = ahead.keep(block, signature)
-        self.counting.record(image, rec)
-        self._mark_usage(rec.queried)
-        return rec
+                table = np.concatenate([table, _values(env, features, following)], 1)
+            rec = ahead.keep(self._recognize_table(table, self.settings.min_information), signature)
+        return self._training_recognition(env, image, rec)
 
     def _expert(self, env: ImageSet, image: int, rec: Recognition, entropy: dict, t_ksd: float) -> Presentation:
         """Alg. 5.1 steps 2-4 on a correctly recognized image."""
@@ -453,8 +455,10 @@ class DistinctiveFeatureLearner:
         """A recognition inside learning: it stops at ``min_information``."""
         return self._recognize_many(env, [image], self.settings.min_information)[0]
 
-    def _training_recognition(self, env: ImageSet, image: int) -> Recognition:
-        rec = self._learning_recognition(env, image)
+    def _training_recognition(self, env: ImageSet, image: int, rec: Recognition | None = None) -> Recognition:
+        """A learning recognition of ``image`` (``rec`` where made already) whose values join the
+        instance list and whose queried features count as used (alg. 5.3)."""
+        rec = self._learning_recognition(env, image) if rec is None else rec
         self.counting.record(image, rec)
         self._mark_usage(rec.queried)
         return rec
