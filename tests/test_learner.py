@@ -10,7 +10,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import in_use
 from ftorch.recognition.environment import ImageSet
-from ftorch.recognition.inference import Recognition, accuracy, recognize, residual_entropy
+from ftorch.recognition.inference import Recognition, accuracy, recognize, recognize_block, residual_entropy
 from ftorch.recognition.instances import InstanceList
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.value_cache import ValueCache
@@ -145,8 +145,7 @@ def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
     features = in_use(learner.networks)
     table = other.values(features, list(range(12)))
     for positive_only in (False, True):
-        learner.set_params(evidence="positive" if positive_only else "both")
-        block = learner.recognize_many(other, range(12))
+        block = recognize_block(learner.networks, table, max(learner.settings.test_information, 1e-12), positive_only)
         for j, got in enumerate(block):
             alone = recognize(learner.networks, dict(zip(features, table[:, j].tolist())).__getitem__,
                               max(learner.settings.test_information, 1e-12), positive_only=positive_only)
@@ -157,12 +156,15 @@ def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
     np.testing.assert_array_equal(np.isnan(after), np.isnan(before[1]))
 
 
-@pytest.mark.parametrize("t_ksd", [0.0, 0.6])
-def test_presenting_in_blocks_equals_presenting_one_by_one(shapes, t_ksd, monkeypatch):
+@pytest.mark.parametrize("t_ksd, block_min", [(0.0, 24), (0.6, 24), (0.0, 1), (0.6, 2)])
+def test_presenting_in_blocks_equals_presenting_one_by_one(shapes, t_ksd, block_min, monkeypatch):
     """present (first recognitions made in blocks while the networks stand) leaves the state that learn
     called image by image leaves: the same presentations, networks, instances, value cache and
-    generator, through stage-0 and expert cycles; and blocks were used."""
+    generator, through stage-0 and expert cycles, with blocks recognized image by image or as
+    blocks (``BLOCK_MIN``); and blocks were used."""
     import ftorch.recognition.learner as module
+
+    monkeypatch.setattr(module, "BLOCK_MIN", block_min)
 
     def taught(by_blocks: bool):
         env = ImageSet(shapes.images[:18], shapes.labels[:18])

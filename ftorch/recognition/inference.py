@@ -227,10 +227,9 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
         for b, k, v in zip(active.tolist(), best.tolist(), value.tolist()):
             queried[b].append(keys[k])
             measured[b][keys[k]] = v
-        for n, net in enumerate(nets):
-            held = plan.holds[n, best]
-            if not held.any():
-                continue
+        holding = plan.holds[:, best]
+        for n in np.flatnonzero(holding.any(1)).tolist():  # the networks that hold some image's query
+            net, held = nets[n], holding[n]
             images, nodes = active[held], best[held]
             present = value[held] > thresholds[n, nodes]
             if positive_only:
