@@ -3,9 +3,10 @@ import numpy as np
 import torch
 
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import CandidateGenerator, Method, in_use
+from ftorch.recognition.candidates import CandidateGenerator, Method, in_use, pick
 from ftorch.recognition.environment import ImageSet
 from ftorch.space.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
+from ftorch.space.generate import expand_geometric
 from ftorch.space.primitives import PartKind
 from tests.test_learner import shape
 
@@ -57,3 +58,32 @@ def test_same_generator_state_same_candidates():
     runs = [CandidateGenerator(torch.Generator().manual_seed(3)) for _ in range(2)]
     first, second = ([g(m, 10, networks, env, 1, 0, frozenset({1}), []) for m in Method] for g in runs)
     assert first == second
+
+
+def test_method_3_measures_a_feature_once_per_sample_image_and_expands_as_without_the_memory(monkeypatch):
+    """The generator remembers where each picked feature is strongest on each sample image: the same
+    candidates as measuring it every time (the same generator state), and each (image, feature) measured once."""
+    import ftorch.space.generate as generate_module
+
+    env, networks, texel = _setting()
+    pool = CandidateGenerator(torch.Generator().manual_seed(2))(Method.PRIMITIVE, 6, networks, env, 3, 0, frozenset({1}), [])
+    measured, now = [], []
+    strongest = generate_module.strongest
+    monkeypatch.setattr(generate_module, "strongest", lambda f, r, n: measured.append((now[-1], f)) or strongest(f, r, n))
+    remembering = CandidateGenerator(torch.Generator().manual_seed(5))
+    made = []
+    for sample in (3, 3, 4):
+        now.append(sample)
+        made.append(remembering(Method.EXPANSION, 20, networks, env, sample, 0, frozenset({1}), pool))
+    assert len(measured) == len(set(measured)) < 60  # each (image, feature) once; 60 picks in all
+    assert {image for image, _ in measured} == {3, 4}
+    fresh = []
+    generator = torch.Generator().manual_seed(5)
+    for sample in (3, 3, 4):
+        local = [f for f in in_use(networks) + pool if isinstance(f, LocalFeature)]
+        fresh.append([f for f in (expand_geometric(pick(local, generator), env.record(sample), 0, generator)
+                                  for _ in range(20)) if f is not None])
+    assert made == fresh and any(made)
+    other = ImageSet(env.images, env.labels)  # another image set: its own memory
+    remembering(Method.EXPANSION, 5, networks, other, 3, 0, frozenset({1}), pool)
+    assert remembering._located[0] is other

@@ -75,6 +75,9 @@ def in_use(networks: dict[Hashable, ClassNetwork]) -> list:
     return list(dict.fromkeys(f for net in networks.values() for f in net.features))
 
 
+LOCATED_LIMIT = 20_000  # strongest occurrences a generator remembers (each a few scalars)
+
+
 class CandidateGenerator:
     """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
     from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
@@ -83,6 +86,17 @@ class CandidateGenerator:
         self.generator = generator
         self.primitives = primitive_set(primitives)
         self.sampled = 0
+        # method 3's strongest occurrences (generate.strongest) by sample image and feature, for
+        # one image set: a feature picked again on the same image is not measured again
+        self._located: tuple[object, dict[int, dict]] = (None, {})
+
+    def _occurrences(self, env: ImageSet, sample: int) -> dict:
+        """The remembered strongest occurrences on image ``sample`` of ``env`` (``LOCATED_LIMIT`` at most in all)."""
+        known, by_image = self._located
+        if known is not env or sum(map(len, by_image.values())) >= LOCATED_LIMIT:
+            by_image = {}
+            self._located = (env, by_image)
+        return by_image.setdefault(sample, {})
 
     def __call__(self, method: Method, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
                  char, disc: frozenset, failed: list) -> list:
@@ -107,7 +121,9 @@ class CandidateGenerator:
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
-            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator) for _ in range(n)]
+            located = self._occurrences(env, sample)
+            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator, located=located)
+                    for _ in range(n)]
             made = [f for f in made if f is not None]
             self.sampled += len(made)
             return made

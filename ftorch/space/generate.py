@@ -95,20 +95,37 @@ def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator 
     return Geometric((head, _relative_part(records, n, second, _point(records, n, first))))
 
 
-def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, generator: torch.Generator | None = None,
-                     max_distance: float | None = None) -> Geometric | None:
-    """Method 3: add a random salient edgel or texel near the feature's strongest occurrence.
-
-    The feature is located in image n by eq. 3.14; its parts are placed there by alg. 3.6 and
-    a salient point (edgel or texel) within ``max_distance`` pixels of the last part becomes the
-    new last part. The existing parts keep their vectors, so the result is more specific.
-    """
-    if not isinstance(feature, LocalFeature):
-        raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
+def strongest(feature: LocalFeature, records: ImageRecords, n: int) -> tuple[Tensor, ...] | None:
+    """Where ``feature`` is strongest in image n (eq. 3.14): (x, y, sigma, theta), or None where it
+    has no valid occurrence; measured on that image alone, so the same feature and image always give
+    the same numbers (a caller may remember them)."""
     found = feature_values([feature], records[n])
     if not bool(torch.isfinite(found.x[0, 0])):
         return None
-    *_, state = placements((found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0]), feature.attitudes())
+    return found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0]
+
+
+def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, generator: torch.Generator | None = None,
+                     max_distance: float | None = None, located: dict | None = None) -> Geometric | None:
+    """Method 3: add a random salient edgel or texel near the feature's strongest occurrence.
+
+    The feature is located in image n by eq. 3.14 (:func:`strongest`; from ``located``, the
+    caller's memory of that image's occurrences by feature, where it holds the feature, and kept
+    there); its parts are placed there by alg. 3.6 and a salient point (edgel or texel) within
+    ``max_distance`` pixels of the last part becomes the new last part. The existing parts keep
+    their vectors, so the result is more specific.
+    """
+    if not isinstance(feature, LocalFeature):
+        raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
+    if located is None:
+        occurrence = strongest(feature, records, n)
+    else:
+        if feature not in located:
+            located[feature] = strongest(feature, records, n)
+        occurrence = located[feature]
+    if occurrence is None:
+        return None
+    *_, state = placements(occurrence, feature.attitudes())
     points = records.mask[n].nonzero()[:, 0]
     distance = torch.hypot(records.x[n, points] - state[0], records.y[n, points] - state[1])
     near = points[(distance >= 0.5) & (distance <= _default_distance(records, n, max_distance))].cpu()
