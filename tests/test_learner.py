@@ -156,7 +156,7 @@ def test_recognition_records_nothing_and_batches_equal_single_images(shapes):
     np.testing.assert_array_equal(np.isnan(after), np.isnan(before[1]))
 
 
-@pytest.mark.parametrize("t_ksd, block_min", [(0.0, 24), (0.6, 24), (0.0, 1), (0.6, 2)])
+@pytest.mark.parametrize("t_ksd, block_min", [(0.0, 1), (0.6, 1), (0.0, 3), (0.6, 3)])
 def test_presenting_in_blocks_equals_presenting_one_by_one(shapes, t_ksd, block_min, monkeypatch):
     """present (first recognitions made in blocks while the networks stand) leaves the state that learn
     called image by image leaves: the same presentations, networks, instances, value cache and

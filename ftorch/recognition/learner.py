@@ -103,36 +103,38 @@ class Presentation(NamedTuple):
 class Ahead:
     """The first recognitions of the presentations still to come in one :meth:`DistinctiveFeatureLearner.present`
     call, made in blocks and kept while the networks' ``signature`` (network objects and revisions)
-    holds. A block's size adapts to how long blocks last: it doubles after a block was used to its
-    end and halves after a change dropped one, from 1 to ``LIMIT`` (the size changes only the work,
-    never a result)."""
+    holds. A block is made only once the networks have stood for ``BLOCK_MIN`` presentations (a block
+    is faster than image by image from there on, and a stable past predicts a stable future); it then
+    spans as many presentations as they have stood, at most ``LIMIT``. The size changes only the
+    work, never a result."""
 
     LIMIT = 64
 
     def __init__(self, images: list[int]):
         self.images, self.at = images, 0  # the presentations, and the next one's position
         self.block: list[Recognition] = []  # recognitions of images[at:at + len(block)]
-        self.signature: tuple | None = None
-        self.size = 2
+        self.signature: tuple | None = None  # the networks' when the block was made
+        self.last: tuple | None = None  # the networks' at the previous presentation
+        self.stood = 0  # presentations since the networks last changed
 
     def take(self, image: int, signature: tuple) -> Recognition | None:
         """The next presentation's recognition where the block holds it and the networks are unchanged."""
         if self.images[self.at] != image:
             raise ValueError(f"presented image {image}, but {self.images[self.at]} comes next")
         self.at += 1
+        self.stood = self.stood + 1 if signature == self.last else 0
+        self.last = signature
         if self.block and signature == self.signature:
-            rec = self.block.pop(0)
-            if not self.block:
-                self.size = min(2 * self.size, self.LIMIT)
-            return rec
-        if self.block:  # a change dropped the rest
-            self.size = max(self.size // 2, 1)
-        self.block = []
+            return self.block.pop(0)
+        self.block = []  # used up, or a change dropped the rest
         return None
 
     def upcoming(self) -> list[int]:
-        """The images after the current one that the next block would recognize too."""
-        return self.images[self.at:self.at + self.size - 1]
+        """The images after the current one that the next block would recognize too (none while the
+        networks have stood for fewer than ``BLOCK_MIN`` presentations)."""
+        if self.stood < BLOCK_MIN:
+            return []
+        return self.images[self.at:self.at + min(self.stood, self.LIMIT) - 1]
 
     def following(self, stored: np.ndarray) -> list[int]:
         """Of :meth:`upcoming`, the leading images whose values (``stored``: the cache's (features,
