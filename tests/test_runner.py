@@ -80,6 +80,9 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
     small = report["small_groups"]
     assert max(small["groups"]) <= ClassNetwork.TABLE_LIMIT and small["evaluations"] > small["recognitions"] > 0
     assert small["ratio_vs_without_memory"] > 0 and small["max_difference_vs_without_memory"] == 0
+    block = report["block"]  # alg. 4.4 for many images at once against one image at a time
+    assert block["bitwise_equal"] and block["ratio_vs_one_by_one"] > 0 and block["queries"] > block["images"] > 1
+    assert block["features"] == 6 * 17 - 5 * 2  # six networks of 17 nodes sharing two
     for limit in (ClassNetwork.TABLE_LIMIT, 0):  # the tables and the einsum baseline remember nothing from before
         net = bench.learned_like_network(np.random.default_rng(0), table_limit=limit)
         unobserved, observed = np.full(len(net.features), -1), np.ones(len(net.features), dtype=np.int64)
