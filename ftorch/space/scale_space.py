@@ -57,6 +57,15 @@ def _ieee_convolutions(device: torch.device):
         conv.fp32_precision = saved
 
 
+def _planned(plans: dict, key: tuple, build):
+    """``plans[key]``, built by ``build()`` where missing; the oldest plan goes beyond ``_PLANS``."""
+    if key not in plans:
+        if len(plans) >= _PLANS:
+            plans.pop(next(iter(plans)))
+        plans[key] = build()
+    return plans[key]
+
+
 class Pyramid(StrEnum):
     """How :class:`ScaleSpace` runs its separable passes (the module docstring says why BAND is the default)."""
 
@@ -153,48 +162,42 @@ class ScaleSpace(nn.Module):
         (first row, last row, first column, 3 x 2T x C matrix): only the columns inside the
         band of its T output rows, so small scales cost less than a dense product.
         """
-        key = (height, width, levels, str(device), dtype)
-        if key not in self._matrices:
-            if len(self._matrices) >= _PLANS:
-                self._matrices.pop(next(iter(self._matrices)))
-            plan = []
-            for k in range(levels):
-                kern = getattr(self, f"kernels_{k}").cpu().numpy()
-                horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
-                v = [torch.from_numpy(band_matrix(kern[c], height)) for c in range(3)]
-                groups = torch.stack([
-                    torch.stack([v[1], 0.75 * v[2]]),
-                    torch.stack([v[0], _SQRT3_2 * v[1]]),
-                    torch.stack([v[0], 0.25 * v[0]]),
-                ])  # (3 channels, 2 outputs, H, H)
-                tile = max(32, 2 * kernel_radius(self.sigma(k), self.truncate))
-                tiles = []
-                for a in range(0, height, tile):
-                    b = min(a + tile, height)
-                    used = groups[:, :, a:b].abs().sum((0, 1, 2)).nonzero()[:, 0]
-                    c0, c1 = int(used.min()), int(used.max()) + 1
-                    block = groups[:, :, a:b, c0:c1].reshape(3, 2 * (b - a), c1 - c0)
-                    tiles.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
-                plan.append((horizontal.to(device=device, dtype=dtype), tiles))
-            self._matrices[key] = plan
-        return self._matrices[key]
+        return _planned(self._matrices, (height, width, levels, str(device), dtype),
+                        lambda: [self._band_level(k, height, width, device, dtype) for k in range(levels)])
+
+    def _band_level(self, k: int, height: int, width: int, device, dtype) -> tuple:
+        """:meth:`_band_matrices` of level k."""
+        kern = getattr(self, f"kernels_{k}").cpu().numpy()
+        horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
+        v = [torch.from_numpy(band_matrix(kern[c], height)) for c in range(3)]
+        groups = torch.stack([
+            torch.stack([v[1], 0.75 * v[2]]),
+            torch.stack([v[0], _SQRT3_2 * v[1]]),
+            torch.stack([v[0], 0.25 * v[0]]),
+        ])  # (3 channels, 2 outputs, H, H)
+        tile = max(32, 2 * kernel_radius(self.sigma(k), self.truncate))
+        tiles = []
+        for a in range(0, height, tile):
+            b = min(a + tile, height)
+            used = groups[:, :, a:b].abs().sum((0, 1, 2)).nonzero()[:, 0]
+            c0, c1 = int(used.min()), int(used.max()) + 1
+            block = groups[:, :, a:b, c0:c1].reshape(3, 2 * (b - a), c1 - c0)
+            tiles.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
+        return horizontal.to(device=device, dtype=dtype), tiles
 
     def _conv_weights(self, height: int, width: int, levels: int, device, dtype):
         """Per level: the column and row indices of the reflect-padded image ((W + 2r,) and (H + 2r,)),
         and the level's kernels g, g', g'' flipped (conv2d correlates) as (3, 1, 1, k) and (3, 1, k, 1)."""
-        key = (height, width, levels, str(device), dtype)
-        if key not in self._convs:
-            if len(self._convs) >= _PLANS:
-                self._convs.pop(next(iter(self._convs)))
-            plan = []
-            for k in range(levels):
-                kern = getattr(self, f"kernels_{k}").detach().to(device=device, dtype=dtype).flip(-1)
-                r = (kern.shape[1] - 1) // 2
-                columns = torch.from_numpy(reflect_index(np.arange(-r, width + r), width)).to(device)
-                rows = torch.from_numpy(reflect_index(np.arange(-r, height + r), height)).to(device)
-                plan.append((columns, rows, kern[:, None, None, :].contiguous(), kern[:, None, :, None].contiguous()))
-            self._convs[key] = plan
-        return self._convs[key]
+        return _planned(self._convs, (height, width, levels, str(device), dtype),
+                        lambda: [self._conv_level(k, height, width, device, dtype) for k in range(levels)])
+
+    def _conv_level(self, k: int, height: int, width: int, device, dtype) -> tuple:
+        """:meth:`_conv_weights` of level k."""
+        kern = getattr(self, f"kernels_{k}").detach().to(device=device, dtype=dtype).flip(-1)
+        r = (kern.shape[1] - 1) // 2
+        columns = torch.from_numpy(reflect_index(np.arange(-r, width + r), width)).to(device)
+        rows = torch.from_numpy(reflect_index(np.arange(-r, height + r), height)).to(device)
+        return columns, rows, kern[:, None, None, :].contiguous(), kern[:, None, :, None].contiguous()
 
     def forward(self, images) -> ScaleSpaceOutput:
         x = as_image_batch(images)[:, 0]
