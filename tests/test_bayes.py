@@ -294,20 +294,3 @@ def test_a_network_changes_only_through_its_methods():
         net.add_arc("b", "a")
     net.set_threshold("a", 0.25)
     assert net.threshold["a"] == 0.25 and net.features == ("a", "b")
-
-
-def test_information_treats_each_table_alone():
-    """ExactInference.infer computes every open node's information in one call over all groups' tables:
-    that gives each table the bits it gets alone (zeros and impossible, NaN tables included)."""
-    from ftorch.recognition.exact import information
-
-    rng = np.random.default_rng(0)
-    for _ in range(300):
-        parts = []
-        for _ in range(int(rng.integers(1, 5))):
-            part = rng.random((int(rng.integers(1, 20)), 2, 2)) * rng.choice([1e-300, 1e-5, 1.0])
-            part[rng.random(part.shape) < 0.2] = 0.0
-            with np.errstate(invalid="ignore"):
-                parts.append(part / part.sum((1, 2), keepdims=True))
-        alone = np.concatenate([information(p) for p in parts])
-        assert information(np.concatenate(parts)).tobytes() == alone.tobytes()

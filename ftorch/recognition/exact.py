@@ -210,13 +210,9 @@ class ExactInference:
         if not total > 0:
             return math.nan, out
         posterior = joint / total
-        # every open node's joint table, computed group by group, then all informations in one call
-        # (information treats each table alone: the same numbers as one call per group)
-        positions, tables = [], []
         open_rows = state[self.singles] < 0
         if open_rows.any():
-            positions.append(self.singles[open_rows])
-            tables.append(posterior[None, :, None] * self.single_cpt[open_rows])
+            out[self.singles[open_rows]] = information(posterior[None, :, None] * self.single_cpt[open_rows])
         # the products of the groups before g and after g, each multiplied in the order of a
         # cumulative product (a few groups: rows multiplied one by one cost less than np.cumprod)
         before, after, product = [], [None] * len(self.groups), np.ones(2)
@@ -237,10 +233,7 @@ class ExactInference:
             rest = weight * before[g] * after[g] / total
             if known is None:
                 both = np.stack([self._contract(group, state, group.keys[i]) for i in open_nodes])
-            positions.append(group.positions[open_nodes])
-            tables.append(rest[None, :, None] * both)
-        if tables:
-            out[np.concatenate(positions)] = information(np.concatenate(tables))
+            out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
         return float(posterior[1]), out
 
     def joint(self, evidence: dict[Hashable, int], query: Hashable | None = None) -> np.ndarray:
