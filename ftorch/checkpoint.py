@@ -76,7 +76,6 @@ class Memo:
     def remember_features(self, chunk: tuple, block: dict) -> None:
         """Remember ``block`` as the packed form of ``chunk``."""
         self._keep(self.features, tuple(map(id, chunk)), (chunk, block))
-        return block
 
     def compress(self, raw: bytes, xz: bool = False) -> str:
         """:func:`_compress`, once per distinct block."""

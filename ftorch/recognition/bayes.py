@@ -57,6 +57,11 @@ def compound_arcs(feature: Feature, present) -> tuple[list, list]:
     return parents, children
 
 
+def _same(old: np.ndarray | None, new: np.ndarray) -> bool:
+    """Whether ``new`` repeats ``old`` byte for byte (shape included; None: there was none)."""
+    return old is not None and old.shape == new.shape and old.tobytes() == new.tobytes()
+
+
 class ClassNetwork:
     """The Bayesian network of one class: prior, feature nodes, arcs, CPTs and thresholds.
 
@@ -117,7 +122,7 @@ class ClassNetwork:
         table.flags.writeable = False
         old = self._cpt.get(key)
         self._cpt[key] = table
-        if old is None or old.shape != table.shape or old.tobytes() != table.tobytes():
+        if not _same(old, table):
             self._changed()  # the same bytes again (a re-count that found the same) change nothing
 
     def _changed(self) -> None:
@@ -157,7 +162,7 @@ class ClassNetwork:
     @prior.setter
     def prior(self, value) -> None:
         old, self._prior = getattr(self, "_prior", None), np.asarray(value, dtype=float)
-        if old is None or old.shape != self._prior.shape or old.tobytes() != self._prior.tobytes():
+        if not _same(old, self._prior):
             self._changed()
 
     def add_feature(self, key: Hashable, parents=(), children=(), threshold: float = 0.5) -> None:
