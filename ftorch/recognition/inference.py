@@ -15,6 +15,7 @@ import math
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from functools import cached_property
 
 import numpy as np
 
@@ -114,16 +115,32 @@ class Plan:
         self.slots = [[] for _ in self.keys]  # the slots of each feature
         for slot, i in enumerate(self.slot_key.tolist()):
             self.slots[i].append(slot)
-        # the same as arrays, for many images at once (:func:`recognize_block`): each feature's slots
-        # (K, S), whether network n holds feature k (N, K), and its node position there (N, K)
-        self.key_slots = np.zeros((len(self.keys), len(self.slot_key)), dtype=bool)
-        self.key_slots[self.slot_key, np.arange(len(self.slot_key))] = True
-        self.holds = np.zeros((len(self.nets), len(self.keys)), dtype=bool)
-        self.position = np.zeros((len(self.nets), len(self.keys)), dtype=np.int64)
         self.where = where  # each network's features as key indices, in its order
-        for n, w in enumerate(where):
-            self.holds[n, w] = True
-            self.position[n, w] = np.arange(len(w))
+
+    # the same as arrays, for many images at once (:func:`recognize_block`), built on first use
+
+    @cached_property
+    def key_slots(self) -> np.ndarray:
+        """Whether slot s belongs to feature k (K, S)."""
+        out = np.zeros((len(self.keys), len(self.slot_key)), dtype=bool)
+        out[self.slot_key, np.arange(len(self.slot_key))] = True
+        return out
+
+    @cached_property
+    def holds(self) -> np.ndarray:
+        """Whether network n holds feature k (N, K)."""
+        out = np.zeros((len(self.nets), len(self.keys)), dtype=bool)
+        for n, w in enumerate(self.where):
+            out[n, w] = True
+        return out
+
+    @cached_property
+    def position(self) -> np.ndarray:
+        """Feature k's node position in network n (N, K; 0 where n does not hold it)."""
+        out = np.zeros((len(self.nets), len(self.keys)), dtype=np.int64)
+        for n, w in enumerate(self.where):
+            out[n, w] = np.arange(len(w))
+        return out
 
     @staticmethod
     def signature(networks: dict[Hashable, ClassNetwork]) -> tuple:

@@ -78,6 +78,7 @@ from .inference import Outcome, Plan, Recognition, Result, accuracy, outcome, re
 from .instances import InstanceList, are_stored_values
 from .settings import Evidence, LearnerSettings, bits, whole
 from .stages import MAX_CYCLES, Schedule, Stage
+from .value_cache import ValueCache
 
 KIND = "learner"
 # From this many images on, alg. 4.4 runs as one block (recognize_block), below it image by image
@@ -136,11 +137,11 @@ class Ahead:
             return []
         return self.images[self.at:self.at + min(self.stood, self.LIMIT) - 1]
 
-    def following(self, stored: np.ndarray) -> list[int]:
-        """Of :meth:`upcoming`, the leading images whose values (``stored``: the cache's (features,
-        images)) are all measured: a block computes no value."""
+    def following(self, cache: ValueCache, features: list) -> list[int]:
+        """Of :meth:`upcoming`, the leading images whose values of ``features`` ``cache`` holds all:
+        a block computes no value."""
         upcoming = self.upcoming()
-        missing = np.isnan(stored).any(0)
+        missing = np.isnan(cache.stored(features, upcoming)).any(0)
         return upcoming[:int(missing.argmax()) if missing.any() else len(upcoming)]
 
     def keep(self, block: list[Recognition], signature: tuple) -> Recognition:
@@ -434,7 +435,7 @@ class DistinctiveFeatureLearner:
         if rec is None:
             features = in_use(self.networks)
             table = _values(env, features, [image])  # asked for as one image's recognition asks
-            following = ahead.following(env.cache.stored(features, ahead.upcoming()))
+            following = ahead.following(env.cache, features)
             if following:
                 table = np.concatenate([table, _values(env, features, following)], 1)
             rec = ahead.keep(self._recognize_table(table, self.settings.min_information), signature)
