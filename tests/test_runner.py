@@ -91,3 +91,19 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
         for group in net.inference.groups:
             remembered = list(group.given) + [key for key, _ in group.contracted]
             assert remembered and set(remembered) == {observed[group.positions].tobytes()}
+
+
+def test_batching_benchmark_replays_the_value_cache_bit_for_bit(tmp_path):
+    """One fold's value computations made again as the cache made them give the same bits (the
+    premise), and merged per search every value is compared bit by bit."""
+    one = np.array([[0.5, np.nan], [0.25, 1.0]], dtype=np.float32)
+    other = one.copy()
+    other[0, 0] = np.nextafter(np.float32(0.5), np.float32(1))
+    assert bench._differing(one, one.copy()) == 0 and bench._differing(one, other) == 1  # NaN equals NaN; one ulp counts
+    assert bench._differing(one.T, other.T) == 1  # not contiguous
+    target = tmp_path / "bench.json"
+    assert bench.main(["batching", "--classes", "3", "--json", str(target)]) == 0
+    r = json.loads(target.read_text())
+    assert r["replay_differing"] == 0
+    assert r["calls"] >= r["merged_calls"] >= r["searches"] > 0 and r["values"] > 0
+    assert 0 <= r["values_differing"] <= r["values"] and r["seconds_one_by_one"] > 0 and r["seconds_per_search"] > 0

@@ -23,6 +23,14 @@ the groups' memories of their own evidence against the same networks without the
 groups (that network) and one 20-node group contracted by einsum (a 30-node network). Last, alg. 4.4
 for a block of images at once (``recognize_block``) against the one-image path image after image, on
 six such class networks from empty memories; the two must agree bit for bit.
+
+``python -m training.bench batching [--data DIR] [--classes N] --json PATH`` replays the feature-value
+computations of one fold's chapter 4 learning (COIL at 128x128 with ``--data``, else the rendered
+Plym task; seed 0), each as the value cache made it, against the same values computed in one call per
+search (alg. 4.8: all its methods' candidates on all its images): the time of both and how many values
+differ in some bit, and whether more features or more images in a call cause it. Merging is what
+bigger candidate batches would do; values that differ would change the run, so they say whether it
+is exact.
 """
 from __future__ import annotations
 
@@ -39,18 +47,21 @@ from ftorch import FeatureSpace, ScaleSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.exact import information
 from ftorch.recognition.inference import Plan, recognize, recognize_block
+from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.space.evaluate import feature_values
 from ftorch.space.features import Conjunction, Disjunction
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.kernels import derivative_kernels
 from ftorch.space.reference import reference_values, scipy_basis
 from ftorch.space.scale_space import Pyramid
-from training.cli.arguments import Parser
+from training.cli.arguments import Parser, at_least
 from training.cli.devices import resolve_device
 from training.cli.outputs import writable_file
 from training.data.builtin import builtin_scene
+from training.data.datasets import load_task
 
 TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
 
@@ -357,6 +368,103 @@ def recognition(args) -> dict:
             "block": block_section(20 if args.quick else 60, repeats)}
 
 
+class _RecordedImages(ImageSet):
+    """An image set that records each value computation: (search or None, features, images, values)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.calls: list[tuple] = []
+        self.search: int | None = None  # the number of the search under way, if any
+        self.searches = 0
+
+    def _compute(self, features, images):
+        values = super()._compute(features, images)
+        self.calls.append((self.search, list(features), list(images), values))
+        return values
+
+
+class _MarkedLearner(DistinctiveFeatureLearner):
+    """A learner that numbers its searches (alg. 4.8) on a :class:`_RecordedImages`."""
+
+    def _search(self, env, *args, **kwargs):
+        env.searches += 1
+        env.search = env.searches
+        try:
+            return super()._search(env, *args, **kwargs)
+        finally:
+            env.search = None
+
+
+def _differing(a: np.ndarray, b: np.ndarray) -> int:
+    """How many entries differ in some bit (NaN equal to NaN)."""
+    a, b = (np.ascontiguousarray(x).view(np.uint8).reshape(x.size, -1) for x in (a, b))
+    return int((a != b).any(1).sum())
+
+
+def batching(args) -> dict:
+    task = (load_task("coil", args.data, args.classes, size=128) if args.data is not None
+            else load_task("plym", classes=args.classes, size=64))
+    train, _ = task.fold(1)
+    learner = _MarkedLearner(seed=0)
+    env = _RecordedImages([task.view(i) for i in train], [task.labels[i] for i in train], space=learner.space)
+    start = time.perf_counter()
+    learner.fit(env, stages=0)
+    learning = time.perf_counter() - start
+    calls = env.calls
+
+    def compute(features, images):  # without recording
+        return ImageSet._compute(env, features, images)
+
+    groups: list[list[tuple]] = []  # the calls of one search together, every other call alone
+    for call in calls:
+        if call[0] is not None and groups and groups[-1][0][0] == call[0]:
+            groups[-1].append(call)
+        else:
+            groups.append([call])
+    merged = [(list(dict.fromkeys(f for c in group for f in c[1])), sorted({i for c in group for i in c[2]}))
+              for group in groups]
+
+    def one_by_one():
+        return [compute(features, images) for _, features, images, _ in calls]
+
+    def per_search():
+        return [compute(features, images) for features, images in merged]
+
+    device = torch.device("cpu")
+    (alone, replayed), (together, out) = _interleaved([one_by_one, per_search], 1, device)
+    # the premise: a computation made again as the cache made it gives the same bits
+    replay_differing = sum(_differing(call[3], again) for call, again in zip(calls, replayed))
+    differ = total = by_features = by_images = 0
+    for group, (features, images), values in zip(groups, merged, out):
+        row, column = {f: k for k, f in enumerate(features)}, {i: k for k, i in enumerate(images)}
+        for _, f, im, made in group:
+            total += made.size
+            differ += _differing(made, values[np.ix_([row[x] for x in f], [column[i] for i in im])])
+            by_features += _differing(made, compute(features, im)[[row[x] for x in f]])
+            by_images += _differing(made, compute(f, images)[:, [column[i] for i in im]])
+    return {"task": task.name, "classes": len(task.classes()), "images": len(train), "learning_seconds": learning,
+            "calls": len(calls), "searches": sum(1 for g in groups if g[0][0] is not None),
+            "median_features": float(np.median([len(c[1]) for c in calls])),
+            "median_images": float(np.median([len(c[2]) for c in calls])),
+            "merged_calls": len(merged), "seconds_one_by_one": alone, "seconds_per_search": together,
+            "ratio_vs_one_by_one": alone / together, "replay_differing": replay_differing,
+            "values": total, "values_differing": differ,
+            "differing_with_more_features": by_features, "differing_with_more_images": by_images}
+
+
+def print_batching(report: dict) -> None:
+    r = report
+    print(f"{r['task']}, {r['classes']} classes, fold 1 ({r['images']} images), stage 0: learning {r['learning_seconds']:.1f} s, "
+          f"{r['calls']} value computations (median {r['median_features']:.0f} features x {r['median_images']:.0f} images), "
+          f"{r['searches']} searches")
+    print(f"one by one {r['seconds_one_by_one']:.2f} s, one call per search ({r['merged_calls']} calls) "
+          f"{r['seconds_per_search']:.2f} s (ratio {r['ratio_vs_one_by_one']:.2f}); the calls made again as made: "
+          f"{'bit for bit the same' if not r['replay_differing'] else str(r['replay_differing']) + ' values DIFFERENT'}")
+    print(f"values differing in some bit: {r['values_differing']} of {r['values']} "
+          f"(with more features in the call {r['differing_with_more_features']}, with more images {r['differing_with_more_images']})"
+          f"{'' if r['values_differing'] else ': merging is exact here'}")
+
+
 def print_recognition(report: dict) -> None:
     r = report
     print(f"evaluate (posterior + {r['nodes']} informations): {r['evaluations_per_s']:9.0f}/s  "
@@ -405,6 +513,10 @@ def parser() -> argparse.ArgumentParser:
     p = commands.add_parser("recognition", help="exact-inference benchmark (alg. 4.4 inner loop)")
     p.add_argument("--quick", action="store_true", help="fewer evidence sets")
     p.add_argument("--json", help="write the figures to this JSON file")
+    p = commands.add_parser("batching", help="feature values one call per search against the value cache's calls")
+    p.add_argument("--data", help="COIL-20 folder (128x128 images); default: the rendered Plym task")
+    p.add_argument("--classes", type=at_least(2, "classes"), default=None, help="the first N classes (default: COIL 6, Plym all)")
+    p.add_argument("--json", help="write the figures to this JSON file")
     return top
 
 
@@ -416,6 +528,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "recognition":
             report = recognition(args)
             print_recognition(report)
+        elif args.command == "batching":
+            report = batching(args)
+            print_batching(report)
         else:
             resolve_device(args.device)
             report = features(args)
