@@ -28,6 +28,9 @@ def test_the_device_script_runs_each_step_with_commands_that_parse(tmp_path):
         "CUDA test", "COIL-6 128x128 on cuda", "COIL-6 10 seeds 8 workers on cuda", "feature benchmark on cuda",
         "COIL-6 128x128 on cpu", "feature benchmark on cpu"]
     assert all(line.endswith("exit 0") for line in summary)
+    limits = [int(line.split("(limit ")[1].split(" s)")[0]) for line in done.stdout.splitlines()
+              if line.startswith("=== ") and "(limit " in line]
+    assert len(limits) == len(summary) and sum(limits) <= 590  # the device tool stops a command at 600 s
     assert (tmp_path / "out" / "device.log").read_text() == done.stdout
 
     modules = [argv[1:] for argv in map(json.loads, calls.read_text().splitlines()) if argv[0] == "-m"]
