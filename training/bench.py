@@ -25,7 +25,7 @@ for a block of images at once (``recognize_block``) against the one-image path i
 six such class networks from empty memories; the two must agree bit for bit.
 
 ``python -m training.bench batching [--data DIR] [--classes N] --json PATH`` replays the feature-value
-computations of one fold's chapter 4 learning (COIL at 128x128 with ``--data``, else the rendered
+computations of one fold's chapter 4 learning (COIL as stored in ``--data``, else the rendered
 Plym task; seed 0), each as the value cache made it, against the same values computed in one call per
 search (alg. 4.8: all its methods' candidates on all its images): the time of both and how many values
 differ in some bit, and whether more features or more images in a call cause it. Merging is what
@@ -38,6 +38,7 @@ import argparse
 import json
 import sys
 import time
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -368,18 +369,28 @@ def recognition(args) -> dict:
             "block": block_section(20 if args.quick else 60, repeats)}
 
 
+class _Call(NamedTuple):
+    """One value computation of the value cache: the number of the search it belongs to (None
+    outside a search), its features and images, and the values it gave (features, images)."""
+
+    search: int | None
+    features: list
+    images: list[int]
+    values: np.ndarray
+
+
 class _RecordedImages(ImageSet):
-    """An image set that records each value computation: (search or None, features, images, values)."""
+    """An image set that records each value computation (:class:`_Call`)."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.calls: list[tuple] = []
+        self.calls: list[_Call] = []
         self.search: int | None = None  # the number of the search under way, if any
         self.searches = 0
 
     def _compute(self, features, images):
         values = super()._compute(features, images)
-        self.calls.append((self.search, list(features), list(images), values))
+        self.calls.append(_Call(self.search, list(features), list(images), values))
         return values
 
 
@@ -402,7 +413,7 @@ def _differing(a: np.ndarray, b: np.ndarray) -> int:
 
 
 def batching(args) -> dict:
-    task = (load_task("coil", args.data, args.classes, size=128) if args.data is not None
+    task = (load_task("coil", args.data, args.classes) if args.data is not None
             else load_task("plym", classes=args.classes, size=64))
     train, _ = task.fold(1)
     learner = _MarkedLearner(seed=0)
@@ -415,17 +426,17 @@ def batching(args) -> dict:
     def compute(features, images):  # without recording
         return ImageSet._compute(env, features, images)
 
-    groups: list[list[tuple]] = []  # the calls of one search together, every other call alone
+    groups: list[list[_Call]] = []  # the calls of one search together, every other call alone
     for call in calls:
-        if call[0] is not None and groups and groups[-1][0][0] == call[0]:
+        if call.search is not None and groups and groups[-1][0].search == call.search:
             groups[-1].append(call)
         else:
             groups.append([call])
-    merged = [(list(dict.fromkeys(f for c in group for f in c[1])), sorted({i for c in group for i in c[2]}))
+    merged = [(list(dict.fromkeys(f for c in group for f in c.features)), sorted({i for c in group for i in c.images}))
               for group in groups]
 
     def one_by_one():
-        return [compute(features, images) for _, features, images, _ in calls]
+        return [compute(call.features, call.images) for call in calls]
 
     def per_search():
         return [compute(features, images) for features, images in merged]
@@ -433,19 +444,20 @@ def batching(args) -> dict:
     device = torch.device("cpu")
     (alone, replayed), (together, out) = _interleaved([one_by_one, per_search], 1, device)
     # the premise: a computation made again as the cache made it gives the same bits
-    replay_differing = sum(_differing(call[3], again) for call, again in zip(calls, replayed))
+    replay_differing = sum(_differing(call.values, again) for call, again in zip(calls, replayed))
     differ = total = by_features = by_images = 0
     for group, (features, images), values in zip(groups, merged, out):
         row, column = {f: k for k, f in enumerate(features)}, {i: k for k, i in enumerate(images)}
-        for _, f, im, made in group:
-            total += made.size
-            differ += _differing(made, values[np.ix_([row[x] for x in f], [column[i] for i in im])])
-            by_features += _differing(made, compute(features, im)[[row[x] for x in f]])
-            by_images += _differing(made, compute(f, images)[:, [column[i] for i in im]])
+        for call in group:
+            rows, columns = [row[f] for f in call.features], [column[i] for i in call.images]
+            total += call.values.size
+            differ += _differing(call.values, values[np.ix_(rows, columns)])
+            by_features += _differing(call.values, compute(features, call.images)[rows])
+            by_images += _differing(call.values, compute(call.features, images)[:, columns])
     return {"task": task.name, "classes": len(task.classes()), "images": len(train), "learning_seconds": learning,
-            "calls": len(calls), "searches": sum(1 for g in groups if g[0][0] is not None),
-            "median_features": float(np.median([len(c[1]) for c in calls])),
-            "median_images": float(np.median([len(c[2]) for c in calls])),
+            "calls": len(calls), "searches": sum(1 for g in groups if g[0].search is not None),
+            "median_features": float(np.median([len(c.features) for c in calls])),
+            "median_images": float(np.median([len(c.images) for c in calls])),
             "merged_calls": len(merged), "seconds_one_by_one": alone, "seconds_per_search": together,
             "ratio_vs_one_by_one": alone / together, "replay_differing": replay_differing,
             "values": total, "values_differing": differ,
@@ -514,7 +526,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer evidence sets")
     p.add_argument("--json", help="write the figures to this JSON file")
     p = commands.add_parser("batching", help="feature values one call per search against the value cache's calls")
-    p.add_argument("--data", help="COIL-20 folder (128x128 images); default: the rendered Plym task")
+    p.add_argument("--data", help="a COIL-20 folder (images as stored); default: the rendered Plym task")
     p.add_argument("--classes", type=at_least(2, "classes"), default=None, help="the first N classes (default: COIL 6, Plym all)")
     p.add_argument("--json", help="write the figures to this JSON file")
     return top
