@@ -214,9 +214,13 @@ def features(args) -> dict:
 def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwork.TABLE_LIMIT,
                          label: str = "bench") -> ClassNetwork:
     """16 nodes: G2 <- G3 <- G4 (geometric chain, G4 -> G2 too), C -> {T, G2}, {a, b} -> D, 9 arc-free
-    (feature names prefixed by ``label`` but for the arc-free n0 and n1, which such networks share)."""
+    (feature names prefixed by a ``label`` other than "bench", but for the arc-free n0 and n1, which
+    such networks share)."""
     net = ClassNetwork(label, table_limit)
-    own = (lambda key: key if key in ("n0", "n1") else f"{label}.{key}") if label != "bench" else (lambda key: key)
+
+    def own(key: str) -> str:
+        return key if label == "bench" or key in ("n0", "n1") else f"{label}.{key}"
+
     structure = [("G2", []), ("G3", ["G2"]), ("G4", ["G3", "G2"]), ("T", []), ("C", []), ("a", []), ("b", []),
                  ("D", ["a", "b"])] + [(f"n{i}", []) for i in range(8)]
     for key, children in structure:

@@ -141,6 +141,8 @@ class Ahead:
         """Of :meth:`upcoming`, the leading images whose values of ``features`` ``cache`` holds all:
         a block computes no value."""
         upcoming = self.upcoming()
+        if not upcoming:  # most presentations: no lookup of every feature in the cache
+            return []
         missing = np.isnan(cache.stored(features, upcoming)).any(0)
         return upcoming[:int(missing.argmax()) if missing.any() else len(upcoming)]
 
