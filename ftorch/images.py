@@ -3,8 +3,10 @@
 Rules:
 - torch tensors and numpy arrays; shape (H, W), (B, H, W) or (B, C, H, W) with C = 1 or 3.
 - uint8 is divided by 255, uint16 by 65535; float16/bfloat16 become float32; float32 and
-  float64 are kept as they are (values need not lie in [0, 1]: feature values are invariant
-  to I -> a*I + b). Other dtypes are refused.
+  float64 are kept as they are (values need not lie in [0, 1]: texels, edgels and their
+  compounds are invariant to I -> a*I + b, a > 0, by :func:`contrast_normalized`; the texture
+  primitive reads intensities in [0, 1] as given). Other dtypes are refused, and so is an image
+  whose values cannot hold its contrast (:data:`MIN_LEVELS`).
 - Colour (C = 3, RGB order) becomes grey by ITU-R BT.601 luma, 0.299 R + 0.587 G + 0.114 B.
   Files are read with OpenCV (BGR order, handled) and converted by the same rule.
 - A 3-D array or tensor whose last axis has 1, 3 or 4 entries is one image (H, W, C): grey, RGB
@@ -28,6 +30,10 @@ from torch import Tensor
 from .errors import InputError
 
 LUMA = (0.299, 0.587, 0.114)
+# steps of its dtype a float image's range must span (:func:`_check_contrast`): 2^15, what float32 holds across one
+# grey level of an 8-bit image at its brightest, so every 8-bit image in [0, 1] passes; answers were seen to change
+# below 2.5e3 steps and never from 5e3 on (docs/decisions.md, "Contrast")
+MIN_LEVELS = 2**15
 
 
 def to_uint8(image: Tensor) -> np.ndarray:
@@ -59,6 +65,7 @@ def as_image_batch(images, name: str = "images") -> Tensor:
         raise InputError(f"{name}: expected shape (H, W), (B, H, W) or (B, C, H, W), got {shape}")
     if images.shape[1] not in (1, 3):
         raise InputError(f"{name}: expected 1 (grey) or 3 (RGB) channels on dim 1, got shape {shape}")
+    given = images.dtype
     images = _to_float(images, name)
     if images.shape[1] == 3:
         weights = torch.tensor(LUMA, dtype=images.dtype, device=images.device)
@@ -67,7 +74,54 @@ def as_image_batch(images, name: str = "images") -> Tensor:
     if not bool(finite.all()):
         bad = int((~finite).sum())
         raise InputError(f"{name}: {bad} of {images.numel()} pixels are NaN or infinite")
+    _check_contrast(images, name, given)
     return images
+
+
+def contrast_normalized(images: Tensor) -> Tensor:
+    """Images (..., H, W) with each one's contrast brought into (1/2, 1] exactly, so that what is
+    salient (an absolute floor on the responses, :mod:`ftorch.space.salient`) and every response
+    are the same for I and a*I + b (3.4.4), and no square of a response overflows or underflows
+    (what :class:`~ftorch.space.record.FeatureSpace` measures; the scale space itself, as a filter
+    bank, responds to the image as given).
+
+    Each image is multiplied by the power of two that brings its range (max - min) into (1/2, 1]:
+    an exact operation, so an image whose range lies there already (every 8-bit image that uses
+    more than half its grey levels) is used bit for bit as given. An offset larger than the range
+    (|min| > max - min) is subtracted first, as it would cost precision in every filter sum; a
+    smaller one costs less than a bit and is kept. A flat image stays flat (zero)."""
+    with torch.no_grad():
+        low, high = images.amin((-2, -1), keepdim=True), images.amax((-2, -1), keepdim=True)
+        span = high - low
+        offset = torch.where(low.abs() > span, low, torch.zeros_like(low))
+        mantissa, exponent = torch.frexp(span)  # span = mantissa * 2^exponent, mantissa in [1/2, 1)
+        exponent = torch.where(mantissa == 0.5, exponent - 1, exponent)  # a power of two: range exactly 1
+        scale = torch.where(span > 0, torch.ldexp(torch.ones_like(span), -exponent), torch.ones_like(span))
+    return (images - offset) * scale
+
+
+def _check_contrast(images: Tensor, name: str, dtype: torch.dtype) -> None:
+    """InputError where a float image's values cannot hold its contrast: its range (max - min) spans
+    fewer than :data:`MIN_LEVELS` steps of its ``dtype`` at the image's magnitude (a float32 image
+    of contrast 1 offset by 1e5 holds values 1/128 apart), or is not finite. Integer images are
+    exact by construction and not checked."""
+    if not dtype.is_floating_point:
+        return
+    info = torch.finfo(dtype)
+    low, high = images.amin((-2, -1)).flatten().double(), images.amax((-2, -1)).flatten().double()
+    span, magnitude = high - low, torch.maximum(low.abs(), high.abs())
+    step = info.eps * torch.exp2(torch.floor(torch.log2(magnitude.clamp_min(info.smallest_normal))))
+    levels = span / step
+    bad = (~torch.isfinite(span) | ((span > 0) & (levels < MIN_LEVELS))).nonzero()
+    if len(bad):
+        i = int(bad[0])
+        where = f"{name}[{i}]" if len(low) > 1 else name
+        if not torch.isfinite(span[i]):
+            raise InputError(f"{where}: its values ({float(low[i]):.3g} to {float(high[i]):.3g}) span more than "
+                             f"{dtype} holds; scale it down")
+        raise InputError(f"{where}: its values ({float(low[i]):.7g} to {float(high[i]):.7g}, {dtype}) lie only "
+                         f"{float(levels[i]):.0f} steps of the dtype apart, fewer than the {MIN_LEVELS} that hold an "
+                         "image's contrast: its offset swamps it (subtract the offset before converting, or use float64)")
 
 
 def as_image(item, name: str = "image") -> Tensor:

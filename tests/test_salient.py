@@ -4,6 +4,7 @@ import math
 import torch
 
 from ftorch import BLOB, EDGEL, FeatureSpace, PartKind
+from ftorch.images import contrast_normalized
 from ftorch.space.kernels import kernel_radius
 from ftorch.space.steering import steer
 
@@ -47,7 +48,7 @@ def test_no_point_where_its_kernel_leaves_the_image():
 def test_texels_are_3d_maxima_and_descriptors_follow_the_layout():
     image = random_image(64, 64, seed=6)
     space = FeatureSpace()
-    out = space.scale_space(image)
+    out = space.scale_space(contrast_normalized(image))  # records describe the image with its range in (1/2, 1]
     blob, corner, edge = out.scale_functions()
     records = space(image)
     for p in records.mask[0].nonzero()[:, 0].tolist():

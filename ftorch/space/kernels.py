@@ -41,15 +41,28 @@ def reflect_index(index: np.ndarray, n: int) -> np.ndarray:
     return np.where(m >= n, 2 * n - 1 - m, m)
 
 
-def band_matrix(kernel: np.ndarray, n: int) -> np.ndarray:
-    """Matrix M (n, n) with M @ x == convolution of x with ``kernel``, boundary folded in by reflection.
+def band_matrix(kernel: np.ndarray, n: int, rows: np.ndarray | None = None,
+                columns: tuple[int, int] | None = None) -> np.ndarray:
+    """Matrix M with M @ x == convolution of x with ``kernel``, boundary folded in by reflection:
+    (n, n), or only its ``rows`` (indices) and the columns ``range(*columns)`` where given.
 
-    The convolution is true convolution, out[i] = sum_j kernel[j] * x[i - j], as in scipy.
+    The convolution is true convolution, out[i] = sum_j kernel[j] * x[i - j], as in scipy. A part is
+    built on its own, never cut from the whole (n, n) matrix, with the same values bit for bit: each
+    entry sums its taps in the same order (ascending j) whatever part is asked for.
     """
     r = (len(kernel) - 1) // 2
-    out = np.arange(n)[:, None]
-    taps = np.arange(-r, r + 1)[None, :]
-    src = reflect_index(out - taps, n)
-    m = np.zeros((n, n))
-    np.add.at(m, (np.broadcast_to(out, src.shape), src), np.broadcast_to(kernel, src.shape))
+    out = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
+    c0, c1 = (0, n) if columns is None else columns
+    src = reflect_index(out[:, None] - np.arange(-r, r + 1)[None, :], n) - c0
+    keep = (src >= 0) & (src < c1 - c0)
+    m = np.zeros((len(out), c1 - c0))
+    at = np.broadcast_to(np.arange(len(out))[:, None], src.shape)
+    np.add.at(m, (at[keep], src[keep]), np.broadcast_to(kernel, src.shape)[keep])
     return m
+
+
+def band_span(start: int, stop: int, radius: int, n: int) -> tuple[int, int]:
+    """Columns [c0, c1) that outputs ``start..stop-1`` of a reflect-folded band matrix of this kernel
+    ``radius`` can read: the band's columns, at most (stop - start + 2 * radius) of them."""
+    src = reflect_index(np.arange(start, stop)[:, None] - np.arange(-radius, radius + 1)[None, :], n)
+    return int(src.min()), int(src.max()) + 1

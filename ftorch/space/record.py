@@ -20,10 +20,10 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from ..errors import InputError
-from ..images import as_image, as_image_batch
+from ..images import as_image, as_image_batch, contrast_normalized
 from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
 from .salient import Points, SalientPoints
-from .scale_space import ScaleSpace, ScaleSpaceOutput
+from .scale_space import _PLANS, ScaleSpace, ScaleSpaceOutput
 from .steering import steer
 from .texture import TextureGrid
 
@@ -293,7 +293,7 @@ class FeatureSpace(nn.Module):
 
     def forward(self, images) -> ImageRecords:
         images = as_image_batch(images)
-        space = self.scale_space(images)
+        space = self.scale_space(contrast_normalized(images))  # invariant to I -> a*I + b (3.4.4)
         return ImageRecords.build(space, self.salient(space), self._texture(images, space))
 
     def _texture(self, images: Tensor, space: ScaleSpaceOutput) -> tuple[Tensor, ...]:
@@ -314,6 +314,17 @@ class FeatureSpace(nn.Module):
                                                        for image in images])
         return len(images) * height * width * entries * 5 * dtype.itemsize  # 2 first- and 3 second-order maps
 
+    def matrices_nbytes(self, images: Sequence) -> int:
+        """Bytes of the filter matrices :meth:`records` builds and caches for these images (or float32
+        images of these (H, W) shapes): one scale-space and one texture plan per size and dtype, at
+        most the ``_PLANS`` largest at once (the caches' size); an upper bound known before building them."""
+        keys = {(tuple(image.shape[-2:]), image.dtype) if isinstance(image, Tensor) else (tuple(image), torch.float32)
+                for image in images}
+        sizes = sorted(self.scale_space.plan_nbytes(height, width, dtype)
+                       + self.texture.plan_nbytes(height, width, self.scale_space.num_levels(height, width), dtype)
+                       for (height, width), dtype in keys)
+        return sum(sizes[-_PLANS:])
+
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:
         """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
@@ -333,7 +344,8 @@ class FeatureSpace(nn.Module):
                 raise InputError(f"{name}: {err}") from None
             loaded.append(image[None].to(device))
         height, width, entries = self._pyramid_layout([image.shape[-2:] for image in loaded])
-        require_memory(self.pyramid_nbytes(loaded), device, f"{len(loaded)} images of up to {height}x{width} pixels")
+        require_memory(self.pyramid_nbytes(loaded), device, f"{len(loaded)} images of up to {height}x{width} pixels",
+                       self.matrices_nbytes(loaded))
         groups: dict[tuple, list[int]] = {}
         for i, image in enumerate(loaded):
             groups.setdefault((tuple(image.shape), image.dtype), []).append(i)
@@ -343,7 +355,7 @@ class FeatureSpace(nn.Module):
         parts, order, pyramid = [], [], None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
             batch = torch.stack([loaded[i] for i in idx])
-            space = self.scale_space(batch)
+            space = self.scale_space(contrast_normalized(batch))
             if pyramid is None:
                 dtype = functools.reduce(torch.promote_types, [space.responses.dtype] + [image.dtype for image in loaded])
                 pyramid = Pyramid.zeros(len(loaded), height, width, entries, dtype, device)
@@ -376,11 +388,12 @@ def free_memory(device: torch.device) -> int | None:
         return None
 
 
-def require_memory(nbytes: int, device, what: str) -> None:
+def require_memory(nbytes: int, device, what: str, matrices: int = 0) -> None:
     """InputError, before anything is computed, where ``what`` needs a scale-space pyramid of
-    ``nbytes`` that ``device`` has no room for (:func:`free_memory`)."""
+    ``nbytes`` and filter matrices of ``matrices`` bytes that ``device`` has no room for (:func:`free_memory`)."""
     free = free_memory(device)
-    if free is not None and nbytes > free:
-        raise InputError(f"{what} need {nbytes / 2**30:.1f} GiB for their scale-space pyramid, more than the "
+    if free is not None and nbytes + matrices > free:
+        also = f" and {matrices / 2**30:.1f} GiB for its filter matrices" if matrices else ""
+        raise InputError(f"{what} need {nbytes / 2**30:.1f} GiB for their scale-space pyramid{also}, more than the "
                          f"{free / 2**30:.1f} GiB free on {torch.device(device)}: reduce the images (area averaging "
                          "to a smaller side, e.g. the runner's --size) or use fewer at once")

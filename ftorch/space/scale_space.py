@@ -6,7 +6,8 @@ G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels, in one of
 (:class:`Pyramid`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
 
 - ``Pyramid.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
-  the boundary folded in, so all images, levels and kernels of one pass are a few large GEMMs.
+  the boundary folded in, so all images, levels and kernels of one pass are a few large GEMMs
+  (tiled by output rows, and beyond ``DENSE_WIDTH`` columns by output columns: see there).
 - ``Pyramid.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
   of the level's three kernels g, g', g'' across the rows and a (k, 1) bank of the same three
   down the columns, the three horizontal maps folded into the batch (one plain call measured
@@ -34,11 +35,20 @@ from torch import Tensor, nn
 
 from ..errors import InputError
 from ..images import as_image_batch
-from .kernels import band_matrix, derivative_kernels, kernel_radius, reflect_index
+from .kernels import band_matrix, band_span, derivative_kernels, kernel_radius, reflect_index
 from .steering import cartesian_from_basis
 
 _SQRT3_2 = math.sqrt(3) / 2
 _PLANS = 8  # cached plans per module (image size, device, dtype)
+# Widths up to DENSE_WIDTH run the horizontal pass as one product with dense (W, W) band matrices, as
+# this module always did: every image size the project uses (128x128 and anything up to 1024 columns)
+# keeps its responses bit for bit, and the reports stay byte for byte. Wider images tile the pass by
+# output columns as the vertical pass is tiled by output rows (each tile holds only the input columns
+# inside its band, the reflecting boundary folded in): 3 W^2 numbers per level would be 6 GB for a
+# 16 x 16000 image, the tiles are 3 W (T + 2r). The tiled sums are the same to rounding (1e-12 in
+# float64, tested), not bit for bit.
+DENSE_WIDTH = 1024
+_WIDE_TILE = 32  # output columns per horizontal tile (at least 2r), as the vertical tiles
 
 
 @contextmanager
@@ -64,6 +74,23 @@ def _planned(plans: dict, key: tuple, build):
             plans.pop(next(iter(plans)))
         plans[key] = build()
     return plans[key]
+
+
+def _tiled_numbers(n: int, tile: int, radius: int) -> int:
+    """Upper bound of the numbers per kernel in the tiles of an n-long pass: each tile of T outputs
+    reads at most min(n, T + 2 radius) inputs."""
+    return sum(min(b - a + 2 * radius, n) * (b - a) for a in range(0, n, tile) for b in [min(a + tile, n)])
+
+
+def _horizontal_pass(rows: Tensor, horizontal) -> Tensor:
+    """(3, R, W): rows (R, W) through g, g', g'' along x, by the level's dense (3, W, W) matrices or its
+    column tiles (:meth:`ScaleSpace._band_matrices`)."""
+    if isinstance(horizontal, Tensor):
+        return torch.matmul(rows, horizontal)
+    out = rows.new_empty(3, *rows.shape)
+    for a, b, c0, c1, block in horizontal:
+        out[:, :, a:b] = torch.matmul(rows[:, c0:c1], block).view(-1, 3, b - a).permute(1, 0, 2)
+    return out
 
 
 class Pyramid(StrEnum):
@@ -155,12 +182,16 @@ class ScaleSpace(nn.Module):
         return margin[None] >= radii[:, None, None]
 
     def _band_matrices(self, height: int, width: int, levels: int, device, dtype):
-        """Per level: horizontal (3, W, W) for g, g', g'' and vertical row tiles.
+        """Per level: the horizontal pass for g, g', g'' and the vertical row tiles.
 
+        Horizontal: (3, W, W) dense matrices up to ``DENSE_WIDTH`` columns, else column tiles
+        (first column, last column, first input column, last input column, C x 3T matrix), each
+        reading only the C input columns inside the band of its T output columns.
         Vertical groups act on one horizontal channel each and carry the basis weights:
         g -> (Gy, 3/4 Gyy), g' -> (Gx, sqrt3/2 Gxy), g'' -> (Gxx, 1/4 Gxx). Each tile is
-        (first row, last row, first column, 3 x 2T x C matrix): only the columns inside the
-        band of its T output rows, so small scales cost less than a dense product.
+        (first row, last row, first column, last column, 3 x 2T x C matrix): only the columns inside the
+        band of its T output rows, so small scales cost less than a dense product. No (n, n) matrix is
+        built for the tiles (``band_matrix`` builds the rows and columns asked for).
         """
         return _planned(self._matrices, (height, width, levels, str(device), dtype),
                         lambda: [self._band_level(k, height, width, device, dtype) for k in range(levels)])
@@ -168,22 +199,51 @@ class ScaleSpace(nn.Module):
     def _band_level(self, k: int, height: int, width: int, device, dtype) -> tuple:
         """:meth:`_band_matrices` of level k."""
         kern = getattr(self, f"kernels_{k}").cpu().numpy()
-        horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
-        v = [torch.from_numpy(band_matrix(kern[c], height)) for c in range(3)]
-        groups = torch.stack([
-            torch.stack([v[1], 0.75 * v[2]]),
-            torch.stack([v[0], _SQRT3_2 * v[1]]),
-            torch.stack([v[0], 0.25 * v[0]]),
-        ])  # (3 channels, 2 outputs, H, H)
+        radius = (kern.shape[1] - 1) // 2
+        if width <= DENSE_WIDTH:
+            horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
+            horizontal = horizontal.to(device=device, dtype=dtype)
+        else:
+            horizontal = []
+            for a in range(0, width, max(_WIDE_TILE, 2 * radius)):
+                b = min(a + max(_WIDE_TILE, 2 * radius), width)
+                c0, c1 = band_span(a, b, radius, width)
+                block = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
+                block = torch.from_numpy(block.reshape(c1 - c0, 3 * (b - a)))
+                horizontal.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
         tile = max(32, 2 * kernel_radius(self.sigma(k), self.truncate))
         tiles = []
         for a in range(0, height, tile):
             b = min(a + tile, height)
-            used = groups[:, :, a:b].abs().sum((0, 1, 2)).nonzero()[:, 0]
-            c0, c1 = int(used.min()), int(used.max()) + 1
-            block = groups[:, :, a:b, c0:c1].reshape(3, 2 * (b - a), c1 - c0)
+            lo, hi = band_span(a, b, radius, height)
+            v = [torch.from_numpy(band_matrix(kern[c], height, np.arange(a, b), (lo, hi))) for c in range(3)]
+            groups = torch.stack([
+                torch.stack([v[1], 0.75 * v[2]]),
+                torch.stack([v[0], _SQRT3_2 * v[1]]),
+                torch.stack([v[0], 0.25 * v[0]]),
+            ])  # (3 channels, 2 outputs, T, columns lo..hi)
+            used = groups.abs().sum((0, 1, 2)).nonzero()[:, 0]
+            c0, c1 = lo + int(used.min()), lo + int(used.max()) + 1
+            block = groups[..., c0 - lo : c1 - lo].reshape(3, 2 * (b - a), c1 - c0)
             tiles.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
-        return horizontal.to(device=device, dtype=dtype), tiles
+        return horizontal, tiles
+
+    def plan_nbytes(self, height: int, width: int, dtype=torch.float32) -> int:
+        """Bytes of the matrices (or conv2d indices and kernels) that one image size's plan holds, an
+        upper bound known without building them: what the memory check counts besides the pyramid."""
+        levels = self.num_levels(height, width)
+        itemsize = torch.empty(0, dtype=dtype).element_size()
+        total = 0
+        for k, radius in enumerate(self.radii(levels)):
+            if self._method is Pyramid.CONV:
+                total += 8 * (height + width + 4 * radius) + 6 * (2 * radius + 1) * itemsize
+                continue
+            if width <= DENSE_WIDTH:
+                total += 3 * width * width * itemsize
+            else:
+                total += 3 * _tiled_numbers(width, max(_WIDE_TILE, 2 * radius), radius) * itemsize
+            total += 6 * _tiled_numbers(height, max(32, 2 * radius), radius) * itemsize
+        return total
 
     def _conv_weights(self, height: int, width: int, levels: int, device, dtype):
         """Per level: the column and row indices of the reflect-padded image ((W + 2r,) and (H + 2r,)),
@@ -212,7 +272,7 @@ class ScaleSpace(nn.Module):
         # same sums are written by assignment
         graph = torch.is_grad_enabled() and x.requires_grad
         for k, (horizontal, tiles) in enumerate(plan):
-            h = torch.matmul(rows, horizontal).view(3, height, batch * width)
+            h = _horizontal_pass(rows, horizontal).view(3, height, batch * width)
             for a, b, c0, c1, block in tiles:
                 v = torch.matmul(block, h[:, c0:c1]).view(6, b - a, batch, width).permute(2, 0, 1, 3)
                 gy, gyy, gx, gxy, gxx, gxx4 = v.unbind(1)

@@ -28,10 +28,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .kernels import band_matrix, derivative_kernels, kernel_radius
+from .kernels import band_matrix, band_span, derivative_kernels, kernel_radius
+from .scale_space import DENSE_WIDTH
 
 BINS = 8
 FIRST_LEVEL = 2  # sigma = 2
+_WIDE_TILE = 64  # pixels of grid points per blur tile beyond DENSE_WIDTH (at least 2r)
 
 
 def level_sigma(level: int) -> float:
@@ -59,12 +61,68 @@ def memberships(images: Tensor) -> Tensor:
     return out
 
 
+def _blur_at(g: np.ndarray, n: int, points: np.ndarray, device, dtype):
+    """The blur of an n-long axis with ``g`` at ``points`` (ascending): the rows (P, n) of its band
+    matrix up to ``DENSE_WIDTH`` (the products every image size the project uses has always had, bit
+    for bit), beyond it tiles (first point, last point, first input, last input, block (p, C)) that
+    hold only the inputs inside the band of about max(64, 2r) pixels of points, so no matrix grows
+    as n^2 / sigma (1 GB at sigma 2 for 16000 columns)."""
+    if n <= DENSE_WIDTH:
+        return torch.from_numpy(band_matrix(g, n, points)).to(device=device, dtype=dtype)
+    radius = (len(g) - 1) // 2
+    per = _points_per_tile(points, radius)
+    tiles = []
+    for p0 in range(0, len(points), per):
+        p1 = min(p0 + per, len(points))
+        c0, c1 = band_span(int(points[p0]), int(points[p1 - 1]) + 1, radius, n)
+        block = torch.from_numpy(band_matrix(g, n, points[p0:p1], (c0, c1)))
+        tiles.append((p0, p1, c0, c1, block.to(device=device, dtype=dtype)))
+    return tiles
+
+
+def _points_per_tile(points: np.ndarray, radius: int) -> int:
+    """Grid points per tile: those within about max(64, 2r) pixels (the grid is evenly spaced)."""
+    step = int(points[1] - points[0]) if len(points) > 1 else 1
+    return max(1, max(_WIDE_TILE, 2 * radius) // step)
+
+
+def _blur_numbers(n: int, points: np.ndarray, radius: int) -> int:
+    """Upper bound of the numbers :func:`_blur_at` holds."""
+    if n <= DENSE_WIDTH:
+        return len(points) * n
+    per = _points_per_tile(points, radius)
+    return sum((p1 - p0) * min(n, int(points[p1 - 1] - points[p0]) + 1 + 2 * radius)
+               for p0 in range(0, len(points), per) for p1 in [min(p0 + per, len(points))])
+
+
+def _rows_blur(vertical, x: Tensor) -> Tensor:
+    """(..., P, W): x (..., H, W) blurred down the columns at the grid rows (:func:`_blur_at`)."""
+    if isinstance(vertical, Tensor):
+        return torch.matmul(vertical, x)
+    out = x.new_empty(*x.shape[:-2], vertical[-1][1], x.shape[-1])
+    for p0, p1, c0, c1, block in vertical:
+        out[..., p0:p1, :] = torch.matmul(block, x[..., c0:c1, :])
+    return out
+
+
+def _columns_blur(x: Tensor, horizontal) -> Tensor:
+    """(..., P, Q): x (..., P, W) blurred along the rows at the grid columns (:func:`_blur_at`, dense
+    as (W, Q))."""
+    if isinstance(horizontal, Tensor):
+        return torch.matmul(x, horizontal)
+    out = x.new_empty(*x.shape[:-1], horizontal[-1][1])
+    for p0, p1, c0, c1, block in horizontal:
+        out[..., p0:p1] = torch.matmul(x[..., c0:c1], block.T)
+    return out
+
+
 class TextureGrid:
     """The texture statistics of equal-sized images at the grid points of every level from
     ``FIRST_LEVEL`` on: x, y, level (Q,) and the square-rooted histograms (B, Q, BINS).
 
     The blur is the sampled Gaussian of :func:`~ftorch.space.kernels.derivative_kernels` (order 0),
-    as a product with its reflect-folded band matrix, evaluated at the grid rows and columns only.
+    as a product with its reflect-folded band matrix, evaluated at the grid rows and columns only
+    (tiled along a side longer than ``DENSE_WIDTH``, :func:`_blur_at`).
     """
 
     def __init__(self, truncate: float = 3.0):
@@ -90,12 +148,25 @@ class TextureGrid:
             plan = []
             for k, rows, cols in self.points(height, width, levels):
                 g = derivative_kernels(level_sigma(k), self.truncate)[0]
-                vertical = torch.from_numpy(band_matrix(g, height)[rows]).to(device=device, dtype=dtype)
-                horizontal = torch.from_numpy(band_matrix(g, width)[cols].T).to(device=device, dtype=dtype)
+                vertical = _blur_at(g, height, rows, device, dtype)
+                horizontal = _blur_at(g, width, cols, device, dtype)
+                if isinstance(horizontal, Tensor):
+                    horizontal = horizontal.T
                 y, x = np.meshgrid(rows, cols, indexing="ij")
                 plan.append((k, vertical, horizontal, torch.from_numpy(x.ravel()), torch.from_numpy(y.ravel())))
             self._plans[key] = plan
         return self._plans[key]
+
+    def plan_nbytes(self, height: int, width: int, levels: int, dtype=torch.float32) -> int:
+        """Bytes of the blur matrices and grid coordinates one image size's plan holds (an upper bound,
+        known without building them)."""
+        itemsize = torch.empty(0, dtype=dtype).element_size()
+        total = 0
+        for k, rows, cols in self.points(height, width, levels):
+            radius = kernel_radius(level_sigma(k), self.truncate)
+            total += (_blur_numbers(height, rows, radius) + _blur_numbers(width, cols, radius)) * itemsize
+            total += 2 * len(rows) * len(cols) * 8
+        return total
 
     def __call__(self, images: Tensor, levels: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """x, y, level (Q,) and histograms (B, Q, BINS) of images (B, H, W) with ``levels`` scale levels."""
@@ -104,7 +175,7 @@ class TextureGrid:
         member = memberships(images)
         xs, ys, ks, hists = [], [], [], []
         for k, vertical, horizontal, x, y in plan:
-            blurred = torch.matmul(torch.matmul(vertical, member), horizontal)  # (B, BINS, rows, cols)
+            blurred = _columns_blur(_rows_blur(vertical, member), horizontal)  # (B, BINS, rows, cols)
             hists.append(blurred.clamp_min(0).sqrt().flatten(2).transpose(1, 2))
             xs.append(x)
             ys.append(y)
