@@ -16,7 +16,8 @@ declared shape allows (``MAX_BYTES`` at most), and readers give the shape the re
 implies (a value cache's features x images, a CPT's parents), so a declared shape that differs is
 refused before anything is inflated: a small damaged or hostile file cannot blow up. Writing goes to a temporary
 file in the same folder, flushed and fsynced, then renamed over the target: a crash leaves
-either the old checkpoint or the new one, never half of one. Reading refuses, with one line
+either the old checkpoint or the new one, never half of one; only a regular file is renamed
+over (:func:`write_target`). Reading refuses, with one line
 naming the file, a missing, truncated, foreign, other-kind or newer checkpoint.
 """
 from __future__ import annotations
@@ -26,9 +27,12 @@ import hashlib
 import json
 import lzma
 import os
+import stat
+import sys
 import tempfile
 import zlib
 from collections import OrderedDict
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
@@ -209,12 +213,97 @@ def decode_text(data: dict, limit: int = MAX_BYTES) -> str:
         raise ValueError(f"damaged text ({err})") from None
 
 
+class Target(Enum):
+    """How a write reaches a path (:func:`write_target`)."""
+
+    REPLACE = "replace"  # a regular file, or nothing yet: written beside it, then renamed over it
+    IN_PLACE = "in place"  # a pipe, the null device, or this process's own output: written to, appended
+
+
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISFIFO, "a pipe"))
+
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+
+
+def write_target(path) -> Target:
+    """How ftorch may write ``path``; InputError, naming it, where it must not.
+
+    Only a regular file (or a missing path, or a link, which is replaced and its target left alone)
+    is replaced atomically: a rename over a device node, a folder or a socket would destroy it (as
+    root, ``--json /dev/null`` would replace the system's null device). Written to in place, where
+    that is what a user means: a pipe (``>(jq .)``), the null device, and the process's own
+    standard streams (``/dev/stdout``, whatever they are). Anything else is refused."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return Target.REPLACE  # nothing there, or a link to nothing: the write makes the file
+    except OSError:
+        return Target.REPLACE  # e.g. a file where a folder should be: the write itself says why, naming path
+    if _standard_stream(st) is not None:
+        return Target.IN_PLACE
+    if stat.S_ISREG(st.st_mode):
+        return Target.REPLACE
+    if stat.S_ISFIFO(st.st_mode) or (stat.S_ISCHR(st.st_mode) and st.st_rdev == _null_device()):
+        return Target.IN_PLACE
+    raise InputError(f"{path}: {_kind(st.st_mode)} is there, not a regular file; ftorch writes regular files "
+                     "(and into a pipe, /dev/null or its own standard output), and does not replace anything else")
+
+
+def _standard_stream(st: os.stat_result) -> int | None:
+    """The descriptor of this process's stdout or stderr where it is the file ``st`` describes (a
+    terminal, a pipe, a redirected file), else None."""
+    for fd in (1, 2):
+        try:
+            other = os.fstat(fd)
+        except OSError:
+            continue
+        if (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino):
+            return fd
+    return None
+
+
+def _write_in_place(path: Path, data: bytes) -> None:
+    """Append ``data`` to ``path``; where it is this process's stdout or stderr, through that very
+    descriptor after what Python holds for it, so that the output keeps its order."""
+    fd = _standard_stream(os.stat(path))
+    if fd is None:
+        with open(path, "ab") as out:
+            out.write(data)
+        return
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
+def _null_device() -> int | None:
+    try:
+        return os.stat(os.devnull).st_rdev
+    except OSError:
+        return None
+
+
 def write_atomic(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder: readers see the old
-    file or the whole new one, and no temporary file is left behind on failure."""
+    file or the whole new one, and no temporary file is left behind on failure. Where ``path`` is
+    not a regular file, :func:`write_target` decides: written in place, or refused. An OSError
+    names ``path``, never the temporary file."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        if write_target(path) is Target.IN_PLACE:
+            _write_in_place(path, data)
+            return path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # a short name of its own: the target's name plus a prefix could pass the file system's limit where the target's does not
+        handle, temporary = tempfile.mkstemp(prefix=".ftorch-", suffix=".tmp", dir=path.parent)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from None
     try:
         os.chmod(temporary, 0o666 & ~_umask())  # mkstemp makes 0600 files; a written file follows the umask
         with os.fdopen(handle, "wb") as out:
@@ -222,8 +311,10 @@ def write_atomic(path, data: bytes) -> Path:
             out.flush()
             os.fsync(out.fileno())
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as err:
         Path(temporary).unlink(missing_ok=True)
+        if isinstance(err, OSError):
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
         raise
     return path
 

@@ -1,12 +1,30 @@
 """What the learners' settings objects share (:class:`~ftorch.recognition.settings.LearnerSettings`,
 :class:`~ftorch.grasp.settings.GraspSettings`): fields that describe their command-line options,
-and replacing options with one error naming an unknown one."""
+replacing options with one error naming an unknown one, and the device a learner computes on."""
 from __future__ import annotations
 
 from dataclasses import field, fields, replace
 from typing import ClassVar
 
+import torch
+
 from .errors import InputError
+
+
+def as_device(value, option: str = "device") -> torch.device:
+    """``value`` (a :class:`torch.device` or its name: cpu, cuda, cuda:N) as a device this machine
+    has; one InputError naming ``option`` where it is not a device name or the device is absent."""
+    try:
+        device = torch.device(value)
+    except (RuntimeError, TypeError, ValueError):
+        device = None
+    if device is None or device.type not in ("cpu", "cuda") or (device.type == "cpu" and device.index):
+        raise InputError(f"{option} {value!r}: expected cpu, cuda, cuda:N" + (" or auto" if option.startswith("--") else ""))
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"{option} {value}: CUDA is not available on this machine")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise InputError(f"{option} {value}: this machine has {torch.cuda.device_count()} CUDA devices")
+    return device
 
 
 def option(default, help: str, metavar: str | None = None, at_least: int | None = None, at_most: int | None = None,

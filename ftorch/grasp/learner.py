@@ -57,6 +57,7 @@ import torch
 from ..checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from ..errors import InputError, NotFittedError
 from ..ksd import ksd
+from ..settings import as_device
 from ..space.evaluate import feature_values
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.generate import expand_geometric, random_edgel_pair
@@ -482,7 +483,7 @@ class GraspLearner:
         self.settings = (GraspSettings() if settings is None else settings).replace(**options)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed must be an integer of at least 0, got {seed!r}")
-        self.seed, self.device = int(seed), torch.device(device)
+        self.seed, self.device = int(seed), as_device(device)
         self.generator = torch.Generator()
         self._blank()
 

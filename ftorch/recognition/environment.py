@@ -48,6 +48,9 @@ class ImageSet:
             raise InputError("image set: no images")
         if records is not None and len(records) != len(images):
             raise InputError(f"{len(images)} images but {len(records)} records")
+        if names is not None and (isinstance(names, (str, bytes)) or len(names) != len(images)):
+            raise InputError(f"{len(images)} images but {1 if isinstance(names, (str, bytes)) else len(names)} names: "
+                             "give one name per image")
         self.labels = [_label_set(label, i) for i, label in enumerate(labels)]
         self.names = list(names) if names is not None else [
             Path(x).name if isinstance(x, (str, Path)) else f"image {i}" for i, x in enumerate(images)]
@@ -144,4 +147,5 @@ def _label_set(labels, image: int) -> frozenset:
     for label in items:
         if not isinstance(label, Hashable):
             raise InputError(f"labels of image {image}: {label!r} is not hashable, so it cannot be a class label")
-    return frozenset(items)
+    # a numpy scalar (np.int64(3), np.str_("a")) is the Python value it holds: the same class, and one a learner can save
+    return frozenset(label.item() if isinstance(label, np.generic) else label for label in items)

@@ -67,6 +67,7 @@ import torch
 
 from ..checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint, stored_position
 from ..errors import InputError, NotFittedError
+from ..settings import as_device
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.record import FeatureSpace
 from .bayes import ClassNetwork, compound_arcs
@@ -209,7 +210,7 @@ class DistinctiveFeatureLearner:
                  **options):
         self.settings = (LearnerSettings() if settings is None else settings).replace(**options)
         self.seed = whole("seed", seed, 0, MAX_SEED)
-        self.device = torch.device(device)
+        self.device = as_device(device)
         self.space = FeatureSpace().to(self.device)
         self.generator = torch.Generator()  # every random choice; set in place on load
         self._blank()

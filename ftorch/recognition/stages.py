@@ -27,17 +27,24 @@ and resume exactly.
 """
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections import Counter
+from collections.abc import Hashable, Iterable
 from dataclasses import asdict, dataclass, field, fields
 
 import torch
 
+from ..errors import InputError
 from .environment import ImageSet
 from .inference import Outcome, Result, outcome
+from .settings import whole
 
 AUTO_LIMIT = 12  # stages of an "auto" schedule at most
 INCREMENTAL_LIMIT = 10  # expert stages per added class (alg. 5.4 step 2)
 MAX_CYCLES = 20  # cycles before a stage gives up (alg. 5.3)
+# the most a schedule may be asked for (fit's and the runner's bound alike): far above any sensible
+# run, so that a typo cannot start one that never ends
+STAGES_LIMIT = 100
+CYCLES_LIMIT = 1000
 
 
 def next_target(t: float, ksd_min: float) -> float:
@@ -127,6 +134,25 @@ class Progress:
     sampled_before: int = 0
 
 
+def taught_order(classes, known: list) -> list:
+    """``classes``, the order in which an incremental task teaches them: each class of the images
+    once; InputError for another class, a repeated one or one left out."""
+    if isinstance(classes, (str, bytes)) or not isinstance(classes, Iterable):
+        raise InputError(f"classes {classes!r}: expected a list of the images' classes")
+    classes = list(classes)
+    try:
+        repeated = [c for c, n in Counter(classes).items() if n > 1]
+    except TypeError as err:
+        raise InputError(f"classes: {err}") from None
+    unknown = [c for c in classes if c not in set(known)]
+    missing = [c for c in known if c not in set(classes)]
+    for problem, found in (("not a class of the images", unknown), ("listed twice", repeated), ("left out", missing)):
+        if found:
+            raise InputError(f"classes: {found[0]!r} is {problem}; list each of the images' {len(known)} classes "
+                             f"once ({', '.join(map(repr, known[:6]))}{', ...' if len(known) > 6 else ''})")
+    return classes
+
+
 class Schedule:
     """Alg. 5.3 for ``learner`` on the training images of ``env`` (alg. 5.4 with ``incremental``,
     teaching ``classes`` in their order), presentations ordered by the generator ``order``;
@@ -137,9 +163,10 @@ class Schedule:
                  max_cycles: int = MAX_CYCLES, classes: list | None = None, incremental: bool = False,
                  versions: int = 1, progress: Progress | None = None):
         self.learner, self.env, self.order = learner, env, order
-        self.max_cycles, self.incremental, self.versions = max_cycles, incremental, versions
-        self.stages = stages
-        self.classes = env.classes() if classes is None else list(classes)
+        self.stages = None if stages is None else whole("stages", stages, 0, STAGES_LIMIT)
+        self.max_cycles = whole("max_cycles", max_cycles, 1, CYCLES_LIMIT)
+        self.incremental, self.versions = incremental, versions
+        self.classes = env.classes() if classes is None else taught_order(classes, env.classes())
         self.progress = Progress() if progress is None else progress
         limit = AUTO_LIMIT if stages is None else stages + 1
         self.limit = min(limit, INCREMENTAL_LIMIT + 1) if incremental else limit
