@@ -27,22 +27,42 @@ that is a file, cannot be created or cannot be written gives one line before a m
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
 import re
 import socket
+import stat
 import sys
 import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
-from ftorch.checkpoint import write_text
+from ftorch.checkpoint import Target, write_target, write_text
 from ftorch.errors import InputError
 
 LEDGER, LOCK = ".ftorch-run", ".ftorch-lock"
+
+
+class Command(StrEnum):
+    """The commands that write a folder: a folder holds the output of one of them at a time."""
+
+    RECOGNIZE = "recognize"
+    INCREMENTAL = "incremental"
+    GRASP = "grasp"
+    EVALUATE = "evaluate"
+    ROBUSTNESS = "robustness"
+    TRADEOFF = "tradeoff"
+    SALIENT = "salient"
+
+
+# the report each command writes at the top of its folder: how a folder is known whose ledger does not name its command
+REPORTS = {"tradeoff.json": Command.TRADEOFF, "robustness.json": Command.ROBUSTNESS, "evaluate.json": Command.EVALUATE,
+           "salient.json": Command.SALIENT}
 EVENTS = "events.out.tfevents."  # the prefix of every TensorBoard event file
 # what recognize, incremental and grasp wrote in a run folder before ledgers: how such a folder is known
 RUN_ENTRIES = re.compile(r"^(report\.(json|md)|(curves|errors|grasps|growth|reductions)\.png|fold\d+(-online)?(_features\.png)?|"
@@ -65,12 +85,35 @@ def writable_folder(path, option: str = "--out") -> Path:
     return path
 
 
+def apart(outputs: dict[str, object], inputs: dict[str, object]) -> None:
+    """InputError where an output folder (by option) lies inside an input folder or holds one: a
+    run's pictures written into its class folders become a class of the next run, perturbed views
+    written into a data set become part of it. Paths are compared resolved (links followed); None
+    (an option not given) is skipped."""
+    for output, out in outputs.items():
+        for given, source in inputs.items():
+            if out is None or source is None:
+                continue
+            where, what = Path(out).resolve(), Path(source).resolve()
+            if where.is_relative_to(what) or what.is_relative_to(where):
+                relation = "is" if where == what else "lies inside" if where.is_relative_to(what) else "holds"
+                raise InputError(f"{output} {out} {relation} {given} {source}: what is written there would be read as "
+                                 f"input by the next run; choose an {output} outside it")
+
+
 def writable_file(path, option: str) -> Path:
     """``path`` as a file that can be written (its folder created where missing); InputError if not,
-    before any work is done (e.g. a benchmark's ``--json``)."""
+    before any work is done (e.g. a benchmark's ``--json``). A pipe, /dev/null or the process's own
+    output is written in place; a folder, a device or a socket is refused (:func:`write_target`)."""
     path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{option} {path}: a folder is there, not a file")
+    try:
+        target = write_target(path)
+    except InputError as err:
+        raise InputError(f"{option} {err}") from None
+    if target is Target.IN_PLACE:
+        if not os.access(path, os.W_OK):
+            raise InputError(f"{option} {path}: cannot write there")
+        return path
     writable_folder(path.parent, option)
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(f"{option} {path}: cannot write there (the file is read-only)")
@@ -92,6 +135,22 @@ class Ledger:
         path, root = Path(path).absolute(), Path(self.root).absolute()
         return str(path.relative_to(root)) if path.is_relative_to(root) else str(path)
 
+    def start(self, command: Command) -> None:
+        """A new ledger, of a run of ``command`` (its first line)."""
+        os.close(_open_own(self.path, os.O_WRONLY | os.O_CREAT))  # refuses a link or a special file there
+        write_text(self.path, json.dumps({"command": str(command)}) + "\n")
+
+    def command(self) -> Command | None:
+        """The command the ledger's run is of; None where it does not say (a ledger written before it did)."""
+        if not self.path.is_file() or self.path.is_symlink():
+            return None
+        try:
+            with open(self.path, encoding="utf-8", errors="replace") as ledger:
+                first = json.loads(ledger.readline())
+            return Command(first["command"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
     def files(self, *paths) -> None:
         """Record files about to be written."""
         self._append([{"file": self._entry(p)} for p in paths])
@@ -103,7 +162,7 @@ class Ledger:
     def _append(self, entries: list[dict]) -> None:
         # one write of whole lines in append mode: appends of several processes do not interleave
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a", encoding="utf-8") as ledger:
+        with os.fdopen(_open_own(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT), "a", encoding="utf-8") as ledger:
             ledger.write("".join(json.dumps(e) + "\n" for e in entries))
 
     def entries(self) -> list[tuple[str, Path]]:
@@ -123,6 +182,25 @@ class Ledger:
         return out
 
 
+def _open_own(path: Path, flags: int) -> int:
+    """A descriptor of ftorch's own bookkeeping file ``path`` (the lock, the ledger), opened with
+    ``flags``; InputError where something else is there (a link, a pipe, a device): writing through
+    it would change a file that is not the run's."""
+    try:
+        handle = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0), 0o666)
+    except OSError as err:
+        if os.path.islink(path) or err.errno in (errno.ELOOP, errno.ENXIO):
+            raise InputError(f"{path}: ftorch keeps its own file there, and something else is there "
+                             "(a link or a special file); remove it") from None
+        raise
+    if not stat.S_ISREG(os.fstat(handle).st_mode):
+        os.close(handle)
+        raise InputError(f"{path}: ftorch keeps its own file there, and something else is there (not a regular "
+                         "file); remove it")
+    os.set_blocking(handle, True)
+    return handle
+
+
 def _holder(handle: int) -> str:
     """Who holds a lock, as its file says (written by :func:`_lock`)."""
     try:
@@ -135,7 +213,7 @@ def _holder(handle: int) -> str:
 def _lock(folder: Path, option: str) -> int:
     """An exclusive lock on ``folder``/.ftorch-lock held by this process (its descriptor); InputError
     naming the holder where another live process holds it."""
-    handle = os.open(folder / LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+    handle = _open_own(folder / LOCK, os.O_RDWR | os.O_CREAT)
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -175,17 +253,40 @@ def _legacy_runs(out: Path, logdir: Path) -> tuple[list[Path], list[Path]]:
     return sorted(found), sorted(events)
 
 
+def _names(paths: list[Path]) -> str:
+    """The first three of ``paths``, for a message."""
+    return ", ".join(str(p) for p in paths[:3]) + (", ..." if len(paths) > 3 else "")
+
+
+def _reported_command(out: Path) -> Command | None:
+    """The command whose output ``out`` holds, told by its report (for folders whose ledger does not
+    name it): recognize, incremental and grasp by report.json's settings, the others by their report's name."""
+    for name, command in REPORTS.items():
+        if (out / name).is_file():
+            return command
+    try:
+        config = json.loads((out / "report.json").read_text(encoding="utf-8"))["config"]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return None
+    if not isinstance(config, dict):
+        return None
+    if "experiment" in config:
+        return Command.GRASP
+    return Command.INCREMENTAL if config.get("incremental") else Command.RECOGNIZE
+
+
 class RunFolder:
     """A run's ``out`` and ``logdir`` held for the run (module doc): ``with RunFolder(...) as folder``
     locks them and decides, ``folder.clear()`` removes the old run once the inputs are checked,
     ``folder.ledger`` records what the new run writes."""
 
-    def __init__(self, out, logdir, resume: bool, overwrite: bool, can_resume: bool = True):
+    def __init__(self, out, logdir, resume: bool, overwrite: bool, command: Command, can_resume: bool = True):
         if resume and overwrite:
             raise InputError("--resume continues the run in --out and --overwrite replaces it: give one of them")
         self.out = writable_folder(out)
         self.logdir = Path(logdir)
         self.resume, self.overwrite, self.can_resume = resume, overwrite, can_resume
+        self.command = Command(command)
         self.ledger = Ledger(str(self.out))
         self._locks: list[int] = []
 
@@ -228,18 +329,39 @@ class RunFolder:
         return list(dict.fromkeys(out))
 
     def _check(self) -> None:
-        """Refuse a folder that holds a run, unless resumed or overwritten."""
+        """Refuse a folder that holds another command's run, a log folder that holds another run's
+        TensorBoard runs, and a folder that holds a run, unless resumed or overwritten; then start
+        the ledger where the folder holds no run."""
+        found = self._found()
+        holder = (self.ledger.command() or _reported_command(self.out)) if found else None
+        if holder is not None and holder is not self.command:
+            raise InputError(f"--out {self.out} holds a run of {holder} ({_names(found)}); {self.command} does not "
+                             "write into another command's folder, with or without --overwrite: choose another --out")
+        self._check_logdir()
+        if not found:
+            self.ledger.start(self.command)
         if self.resume:
             if not list(self.out.glob("fold*/checkpoint.json")) and not list(self.out.glob("seed*/fold*/checkpoint.json")):
                 print(f"note: no checkpoint in {self.out}; --resume starts afresh", file=sys.stderr)
-            return
-        if self.overwrite:
-            return
-        found = self._recorded() if self.ledger.path.is_file() else _legacy_runs(self.out, self.logdir)[0]
-        if found:
-            names = ", ".join(str(p) for p in found[:3])
-            raise InputError(f"--out {self.out} already holds a run ({names}{', ...' if len(found) > 3 else ''}); "
+        elif found and not self.overwrite:
+            raise InputError(f"--out {self.out} already holds a run ({_names(found)}); "
                              + ("--resume continues it, " if self.can_resume else "") + "--overwrite replaces it")
+
+    def _found(self) -> list[Path]:
+        """What the run in OUT wrote that is still there (module doc); empty where it holds none."""
+        return self._recorded() if self.ledger.path.is_file() else _legacy_runs(self.out, self.logdir)[0]
+
+    def _check_logdir(self) -> None:
+        """A log folder outside OUT belongs to one run folder at a time: refuse it where its
+        TensorBoard runs hold event files that this run's ledger does not record."""
+        if self._logdir_inside() or not self.logdir.is_dir():
+            return
+        mine = {path.absolute() for kind, path in self.ledger.entries() if kind == "events"}
+        theirs = sorted({f.parent for run in self.logdir.iterdir() if run.is_dir() and EVENT_RUNS.match(run.name)
+                         for f in run.rglob(f"{EVENTS}*") if f.parent.absolute() not in mine})
+        if theirs:
+            raise InputError(f"--logdir {self.logdir} holds the TensorBoard runs of another run folder ({_names(theirs)}); "
+                             "a log folder belongs to one run folder: choose another --logdir")
 
     def clear(self) -> None:
         """With ``--overwrite``: remove what the old run wrote (module doc) and start a new ledger.
@@ -258,7 +380,7 @@ class RunFolder:
             path.unlink(missing_ok=True)
         for folder in sorted({p.parent for p in removed}, key=lambda p: len(p.parts), reverse=True):
             self._remove_empty(folder)
-        write_text(self.ledger.path, "")
+        self.ledger.start(self.command)
 
     def _remove_empty(self, folder: Path) -> None:
         """``folder`` and its parents, while empty, up to OUT or the log folder (kept)."""

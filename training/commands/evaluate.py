@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import replace
+from pathlib import Path
 
 from ftorch import FeatureSpace
 from ftorch.checkpoint import write_text
@@ -11,7 +12,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training.cli.arguments import at_least
 from training.cli.devices import resolve_device
-from training.cli.outputs import writable_folder
+from training.cli.outputs import Command, RunFolder, apart
 from training.commands.recognize import task_options
 from training.data.datasets import Task, load_task, reduced
 from training.recognition.protocol import confusion, feature_block, image_set, load_learner, test_block
@@ -56,7 +57,15 @@ def at_learned_size(task: Task, learner: DistinctiveFeatureLearner, args) -> Tas
 
 def evaluate_command(args) -> int:
     device = resolve_device(args.device)
-    out = writable_folder(args.out)
+    apart({"--out": args.out}, {"--data": args.data})
+    out = Path(args.out)
+    with RunFolder(out, out, False, True, Command.EVALUATE, can_resume=False) as folder:
+        return _evaluate(args, device, folder)
+
+
+def _evaluate(args, device, folder: RunFolder) -> int:
+    """The body of :func:`evaluate_command` once its output folder is held."""
+    out = folder.out
     learner = load_learner(args.learner)
     networks = {str(c): net for c, net in learner.networks.items()}  # classes by name, as folders and COIL name them
     if len(networks) < len(learner.networks):
@@ -75,6 +84,8 @@ def evaluate_command(args) -> int:
               "confusion": confusion(recognitions, env.labels, classes, networks),
               "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
+    folder.clear()
+    folder.ledger.files(out / "evaluate.json", out / "evaluate.md")
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.learner} on {args.data}", "",
              f"accuracy {result['test']['accuracy']:.2f}; "

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import time
 from dataclasses import fields
@@ -16,17 +17,18 @@ from ftorch.errors import InputError
 from ftorch.recognition.candidates import primitive_set
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import Evidence, LearnerSettings
+from ftorch.recognition.stages import CYCLES_LIMIT, MAX_CYCLES, STAGES_LIMIT
 from ftorch.space.draw import save_rgb
 from ftorch.space.record import ImageRecords, require_memory
 from training.cli.arguments import at_least, number
 from training.cli.devices import machine, peak_memory, resolve_device, start_memory
 from training.cli.jobs import check_seeds, device_options, run_folders, run_jobs, run_options
-from training.cli.outputs import Ledger, RunFolder
+from training.cli.outputs import Command, Ledger, RunFolder, apart
 from training.cli.parallel import reach_ray, share_idle_cores
 from training.data.augment import overview as augmented_overview
 from training.data.datasets import Task, load_task
 from training.plots import curves_figure, figure_rgb, fold_curves_figure, growth_figure
-from training.recognition.pictures import feature_pictures, save_pictures
+from training.recognition.pictures import class_files, feature_pictures, save_pictures
 from training.recognition.protocol import Fold, RunConfig, image_set
 from training.recognition.report import (
     build_report,
@@ -81,15 +83,13 @@ def primitives(text: str) -> str:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
-MAX_STAGES = 100
-
-
 def _stages(text: str) -> int | None:
+    """--stages: auto, or a number of expert stages within what a schedule takes (:data:`STAGES_LIMIT`)."""
     if text == "auto":
         return None
-    if text.isascii() and text.isdigit() and int(text) <= MAX_STAGES:  # "²".isdigit() holds too
+    if text.isascii() and text.isdigit() and int(text) <= STAGES_LIMIT:  # "²".isdigit() holds too
         return int(text)
-    raise InputError(f"--stages {text!r}: expected a number of expert stages (0 to {MAX_STAGES}) or auto")
+    raise InputError(f"--stages {text!r}: expected a number of expert stages (0 to {STAGES_LIMIT}) or auto")
 
 
 def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
@@ -133,7 +133,7 @@ def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
                      args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
                      learner_settings(args),
                      device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
-                     augment=args.augment, dynamic=args.dynamic, incremental=incremental)
+                     augment=args.augment, dynamic=args.dynamic, incremental=incremental, images=task.fingerprint)
 
 
 def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
@@ -203,11 +203,26 @@ def fold_task(job: dict) -> dict:
     entry, fold, learner, pictures = _train_fold(args, task, k, job["seed"], space, out, Path(job["logdir"]),
                                                  job["incremental"], job.get("records") or LOADED.records, ledger)
     figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder, ledger)]
-    bif = {label: fold.folder / "networks" / f"{label}.bif" for label in learner.networks}
+    bif = {label: fold.folder / "networks" / class_files(label)[1] for label in learner.networks}
     ledger.files(*bif.values())
     for label, net in learner.networks.items():
         write_text(bif[label], net.to_bif())
     return {"entry": {**entry, "machine": machine(device), **peak_memory(device)}, "figures": figures}
+
+
+def check_names(classes: list, out: Path) -> None:
+    """Refuse a class whose files (:func:`class_files`) would have names longer than the file system
+    takes: found before a fold is trained, not when its first figure is written."""
+    try:
+        limit = os.pathconf(out, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):
+        limit = 255
+    for label in classes:
+        name = max(class_files(label), key=lambda n: len(n.encode("utf-8")))
+        if len(name.encode("utf-8")) > limit:
+            raise InputError(f"class {str(label)[:40]!r}... has a name of {len(str(label).encode('utf-8'))} bytes: a run "
+                             f"writes files named after each class ({name[-20:]!r} at the end), and {out}'s file system "
+                             f"takes names of at most {limit} bytes; shorten the class folder's name")
 
 
 def check_inputs(task: Task, folds: int, augment: int, device: torch.device, processes: int = 1) -> None:
@@ -220,6 +235,7 @@ def check_inputs(task: Task, folds: int, augment: int, device: torch.device, pro
     sets = list(dict.fromkeys(tuple(view) for k in range(1, folds + 1) for view in task.fold(k)))
     need = sum(space.pyramid_nbytes([shapes[i] for i in view]) for view in sets)
     need += augment * max(space.pyramid_nbytes([shapes[i] for i in task.fold(k)[0]]) for k in range(1, folds + 1))
+    need += space.matrices_nbytes(shapes)  # the filter matrices each process builds for the images' sizes
     height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
     copies = processes if device.type == "cuda" else 1
     require_memory(need * copies, device, f"the {len(shapes)} images of the task (up to {height}x{width} pixels)"
@@ -235,12 +251,15 @@ def recognize_command(args, incremental: bool = False) -> int:
     learner_settings(args)  # refuses bad parameters early
     start = time.perf_counter()
     out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
-    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
+    apart({"--out": out, "--logdir": args.logdir}, {"--data": args.data})
+    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite,
+                   Command.INCREMENTAL if incremental else Command.RECOGNIZE) as folder:
         args.checkpoints = out = folder.out  # where an interrupted run continues from (main)
         reach_ray(args.ray)
         torch.manual_seed(args.seed)
         LOADED.clear()  # each command loads its data afresh
         task = LOADED.task(args, device)
+        check_names(task.classes(), out)
         check_inputs(task, args.folds, args.augment, device, 1 if args.ray else min(args.workers, args.folds + args.seeds - 1))
         folder.clear()  # the inputs are good: only now is an old run replaced
         return _recognize(args, incremental, device, task, folder, start)
@@ -362,7 +381,7 @@ def _training_options(p: argparse.ArgumentParser, default: str) -> None:
                    help="with --augment N: each cycle presents one version of every training view, drawn from the view "
                         "and its N copies, and a stage ends once the original views are learned (default off: every "
                         "copy is a training view of its own)")
-    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", 1000), default=20,
+    p.add_argument("--max-cycles", type=at_least(1, "a number of cycles", CYCLES_LIMIT), default=MAX_CYCLES,
                    help="give up a stage after this many cycles (default 20, alg. 5.3)")
     run_options(p, "runs/TASK, runs/TASK-inc for incremental",
                 repeated="repeat fold 1 with seeds SEED, SEED+1, ...: novice vs expert accuracy with a paired one-tailed "

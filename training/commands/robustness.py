@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import time
-from contextlib import nullcontext
 from pathlib import Path
 
 import torch
@@ -17,9 +16,10 @@ from ftorch.space.draw import save_rgb
 from training.cli.arguments import number, seed
 from training.cli.devices import described, machine, resolve_device
 from training.cli.jobs import device_options
-from training.cli.outputs import Ledger, locked, writable_folder
+from training.cli.outputs import Command, Ledger, RunFolder, apart, locked, writable_folder
 from training.data.datasets import load_task
 from training.plots import feature_types_figure, figure_rgb
+from training.recognition.protocol import same_images
 from training.recognition.report import (
     write_json,
 )
@@ -35,27 +35,50 @@ def robustness_command(args) -> int:
     if args.test_information is not None:
         LearnerSettings(test_information=args.test_information)  # refuses a bad threshold early
     run = Path(args.run_folder)
-    out = writable_folder(args.out if args.out else run / "robustness") if args.out or run.is_dir() else None
+    if not run.is_dir():
+        raise InputError(f"--run {run}: not a run folder of recognize (no such folder)")
+    out = Path(args.out) if args.out else run / "robustness"
+    apart({"--out": out}, {"--data": args.data or _recorded_data(run)})  # before a folder is made, let alone written
     # results written inside the run folder belong to the run: the run is locked meanwhile, and they
-    # are recorded in its ledger, so --overwrite of the run replaces them and nothing else
-    inside = out is not None and out.absolute().is_relative_to(run.absolute())
-    with locked(run, "--run") if inside else nullcontext():
-        return _robustness(args, device, kinds, run, out, Ledger(str(run)) if inside else None)
+    # are recorded in its ledger, so --overwrite of the run replaces them and nothing else; elsewhere
+    # the folder is robustness's own (a run of another command there is refused)
+    if out.absolute().is_relative_to(run.absolute()):
+        with locked(run, "--run"):
+            return _robustness(args, device, kinds, run, writable_folder(out), Ledger(str(run)))
+    with RunFolder(out, out, False, True, Command.ROBUSTNESS, can_resume=False) as folder:
+        return _robustness(args, device, kinds, run, folder.out, folder.ledger, folder)
 
 
-def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger | None) -> int:
-    """The body of :func:`robustness_command` once its output folder is held."""
+def _recorded_data(run: Path) -> str | None:
+    """The image folder the run's report records (None where it records none, or is no report)."""
+    try:
+        data = json.loads((run / "report.json").read_text())["config"]["data"]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return None
+    return data if isinstance(data, str) else None
+
+
+def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger,
+                folder: RunFolder | None = None) -> int:
+    """The body of :func:`robustness_command` once its output folder is held (``folder``: its own,
+    cleared once the run and its images are checked; None: inside the run)."""
     try:
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
         data = args.data or config["data"]
-        task = load_task(config["task"], data, len(config["classes"]), config["views"],
-                         config["size"], config["seed"], config["first_view"])
         folds = [f["fold"] for f in report["folds"]]
         if not folds:
             raise ValueError("no folds")
     except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
         raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+    try:
+        task = load_task(config["task"], data, len(config["classes"]), config["views"],
+                         config["size"], config["seed"], config["first_view"])
+    except (KeyError, TypeError) as err:
+        raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+    same_images(task, config, f"--run {run}", data)
+    if folder is not None:
+        folder.clear()
     start = time.perf_counter()
     space = FeatureSpace().to(device)
     answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
@@ -70,8 +93,7 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
               "average": average_robustness(results), "machine": machine(device),
               "seconds": time.perf_counter() - start}
     types = result["average"].get("types")
-    if ledger is not None:
-        ledger.files(out / "robustness.json", out / "robustness.md", *([out / "features.png"] if types else []))
+    ledger.files(out / "robustness.json", out / "robustness.md", *([out / "features.png"] if types else []))
     write_json(out / "robustness.json", result)
     if types:
         save_rgb(out / "features.png", figure_rgb(feature_types_figure(types, f"{run}: which features survive, "

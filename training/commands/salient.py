@@ -13,7 +13,7 @@ from ftorch.space.draw import draw_salient, save_rgb, titled
 from training.cli.arguments import number
 from training.cli.devices import resolve_device
 from training.cli.jobs import device_options
-from training.cli.outputs import writable_folder
+from training.cli.outputs import Command, RunFolder
 from training.data.builtin import builtin_scene
 
 
@@ -21,16 +21,25 @@ def salient_command(args) -> int:
     device = resolve_device(args.device)
     if not 0 < args.truncate <= 10:
         raise InputError(f"--truncate {args.truncate}: expected a kernel radius in (0, 10] sigmas")
-    out = writable_folder(args.out)
-    if args.images:
-        names = [Path(p) for p in args.images]
-        images = [load_image(p) for p in names]
-    else:
-        names = [Path("builtin-scene.png")]
-        images = [torch.from_numpy(builtin_scene())]
-    space = FeatureSpace(truncate=args.truncate).to(device)
-    with torch.no_grad():
-        records = space.records(images, progress=len(images) > 4, names=[str(p) for p in names])
+    out = Path(args.out)
+    names = [Path(p) for p in args.images] or [Path("builtin-scene.png")]
+    beside = sorted({str(name.parent) for name in map(Path, args.images) if name.parent.resolve() == out.resolve()})
+    if beside:
+        raise InputError(f"--out {out} holds the images ({beside[0]}): the figures would be read as images by the next "
+                         "run on that folder; choose another --out")
+    with RunFolder(out, out, False, True, Command.SALIENT, can_resume=False) as folder:
+        images = [load_image(p) for p in names] if args.images else [torch.from_numpy(builtin_scene())]
+        space = FeatureSpace(truncate=args.truncate).to(device)
+        with torch.no_grad():
+            records = space.records(images, progress=len(images) > 4, names=[str(p) for p in names])
+        folder.clear()
+        _draw(records, names, images, folder)
+    return 0
+
+
+def _draw(records, names: list[Path], images: list, folder: RunFolder) -> None:
+    """One figure per image and ``salient.json``, each recorded in the folder's ledger before it is written."""
+    out = folder.out
     counts = records.counts()
     summary = []
     stems = [name.stem for name in names]
@@ -41,14 +50,15 @@ def salient_command(args) -> int:
         row = {"image": str(name), "edgels": counts["edgels"][n], "blobs": counts["blobs"][n],
                "corners": counts["corners"][n], "figure": str(target)}
         row["texels"] = row["blobs"] + row["corners"]
+        folder.ledger.files(target)
         save_rgb(target, titled(draw_salient(records, n, image),
                                 f"{name.name}: {row['edgels']} edgels (left: segments of 2 sigma); {row['blobs']} blobs "
                                 f"(circles) and {row['corners']} corners (squares) of radius sigma"))
         summary.append(row)
         print(f"{name}: {row['edgels']} edgels, {row['texels']} texels "
               f"({row['blobs']} blobs, {row['corners']} corners) -> {target}")
+    folder.ledger.files(out / "salient.json")
     write_text(out / "salient.json", json.dumps(summary, indent=2) + "\n")
-    return 0
 
 
 def add_parser(commands) -> None:

@@ -11,7 +11,7 @@ from ftorch.space.draw import save_rgb
 from training.cli.arguments import seed
 from training.cli.devices import described, machine, resolve_device
 from training.cli.jobs import device_options
-from training.cli.outputs import RunFolder, locked
+from training.cli.outputs import Command, RunFolder, apart, locked
 from training.plots import figure_rgb, tradeoff_figure
 from training.recognition.report import (
     write_json,
@@ -29,15 +29,14 @@ def tradeoff_command(args) -> int:
     kinds = perturbations(args.perturb)
     runs = [Path(r) for r in dict.fromkeys(args.runs)]
     out = Path(args.out)
-    for run in runs:
-        if out.absolute().is_relative_to(run.absolute()) or run.absolute().is_relative_to(out.absolute()):
-            raise InputError(f"--out {out} and --runs {run}: the front is written beside the runs, not inside one")
+    for run in runs:  # the front is written beside the runs and their images, not inside one
+        apart({"--out": out}, {"--runs": run, "--data": args.data})
     with ExitStack() as held:
         for run in runs:  # a run still being written is refused, and none changes meanwhile
             if not run.is_dir():
                 raise InputError(f"--runs {run}: no such run folder")
             held.enter_context(locked(run, "--runs"))
-        folder = held.enter_context(RunFolder(out, out / "tensorboard", False, args.overwrite, can_resume=False))
+        folder = held.enter_context(RunFolder(out, out / "tensorboard", False, args.overwrite, Command.TRADEOFF, can_resume=False))
         result = tradeoff(runs, kinds, args.seed, FeatureSpace().to(device), args.data, not args.quiet)
         folder.clear()
         result["machine"] = machine(device)

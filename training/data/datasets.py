@@ -13,10 +13,13 @@ reduces files by area averaging (COIL and class folders) or sets Plym's renderin
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -25,7 +28,7 @@ import torch
 from ftorch.errors import InputError
 from ftorch.images import load_image
 
-from .plym import plym_images
+from .plym import plym_images, plym_layout
 
 IMAGE_SUFFIXES = {".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 COIL_NAME = re.compile(r"^obj(\d+)__(\d+)\.png$", re.IGNORECASE)
@@ -66,6 +69,17 @@ class Task:
                 raise InputError(f"class {few[0]!r} has only one view{f' (and {len(few) - 1} more classes)' if len(few) > 1 else ''}: "
                                  "two folds train on alternate views, so fold 2 would never see it; give every class "
                                  "two views or more, or use --folds 1")
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """A digest of the task's views as loaded (names, labels, pixels): a run records it, so that
+        images changed under the same names (mirrored, re-encoded, another data set) are told apart."""
+        digest = hashlib.blake2b(digest_size=16)
+        for i, (name, label) in enumerate(zip(self.names, self.labels)):
+            view = self.view(i).to(torch.float32).contiguous()
+            digest.update(repr((name, label, tuple(view.shape))).encode("utf-8"))
+            digest.update(view.numpy().tobytes())
+        return digest.hexdigest()
 
     def shapes(self) -> list[tuple[int, int]]:
         """(H, W) of every image, each file loaded once to check it (an unreadable one is named)."""
@@ -172,8 +186,11 @@ def folder_task(root) -> Task:
     root = _folder(root)
     images, labels, names, positions = [], [], [], []
     # .git etc. are no class; is_dir follows links
+    skipped = []
     for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        found = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+        files = [p for p in found if _is_image(p)]
+        skipped += [p for p in found if p not in files]
         for j, path in enumerate(files):
             images.append(path)
             labels.append(folder.name)
@@ -181,13 +198,28 @@ def folder_task(root) -> Task:
             positions.append(j)
     if len(set(labels)) < 2:
         raise InputError(f"--data {root}: expected at least two class folders with images (root/<class>/<image>)")
+    if skipped:
+        print(f"note: {len(skipped)} file(s) in the class folders of {root} are not images OpenCV reads and are "
+              f"left out (e.g. {skipped[0].relative_to(root)})", file=sys.stderr)
     return Task("folder", images, labels, names, positions)
 
 
-def plym_task(size: int = 64, seed: int = 0, classes: int | None = None) -> Task:
-    """The built-in Plym-like task: the first ``classes`` (default all 8) rendered solids x 15 views
-    (no files needed)."""
-    return Task("plym", *plym_images(size, seed)).select(classes, None, 0)
+def _is_image(path: Path) -> bool:
+    """A file of a class folder is an image where its name says so (one that then does not load is
+    refused, naming it) or where OpenCV recognizes its content (.webp, .gif, ... under any name)."""
+    return path.suffix.lower() in IMAGE_SUFFIXES or cv2.haveImageReader(str(path))
+
+
+def plym_task(size: int = 64, seed: int = 0, classes: int | None = None, views: int | None = None,
+              first_view: int = 0) -> Task:
+    """The built-in Plym-like task: the first ``classes`` (default all 8) rendered solids x ``views``
+    of their 15 views from ``first_view`` (default all; no files needed). A request beyond the task
+    (more than 8 classes, views past the 15th, ``size`` below 9) is refused before any view is rendered
+    (which takes up to minutes), with :meth:`Task.select`'s line."""
+    _check_size(size)
+    labels, names, positions = plym_layout()
+    Task("plym", [None] * len(labels), labels, names, positions).select(classes, views, first_view)
+    return Task("plym", *plym_images(size, seed)).select(classes, views, first_view)
 
 
 def load_task(name: str, data=None, classes: int | None = None, views: int | None = None, size: int | None = None,
@@ -198,7 +230,7 @@ def load_task(name: str, data=None, classes: int | None = None, views: int | Non
     if name == "plym":
         if data is not None:
             raise InputError("--data: the plym task renders its own images; it takes no image folder")
-        return plym_task(64 if size is None else size, seed).select(classes, views, first_view)
+        return plym_task(64 if size is None else size, seed, classes, views, first_view)
     if data is None:
         raise InputError(f"--task {name} needs --data DIR")
     if name == "coil":

@@ -122,16 +122,20 @@ def render(name: str, view: tuple[float, float, float], size: int = 64, distance
     return avg_pool2d(image[None, None], 2)[0, 0].float()
 
 
+def plym_layout() -> tuple[list[str], list[str], list[int]]:
+    """(labels, names, position of the view in its object's sequence) of all 8 x 15 views in
+    :func:`plym_images`'s order, without rendering any (what a request can be checked against)."""
+    return ([name for name in OBJECTS for _ in VIEWS], [f"{name}_v{k:02d}" for name in OBJECTS for k in range(len(VIEWS))],
+            [k for _ in OBJECTS for k in range(len(VIEWS))])
+
+
 def plym_images(size: int = 64, seed: int = 0) -> tuple[list[Tensor], list[str], list[str], list[int]]:
     """All 8 x 15 views: (images, labels, names, position of the view in its object's sequence)."""
     g = torch.Generator().manual_seed(int(seed))
-    images, labels, names, positions = [], [], [], []
+    images = []
     for name in OBJECTS:
-        for k, view in enumerate(VIEWS):
+        for view in VIEWS:
             image = render(name, view, size)
             noise = torch.randn(image.shape, generator=g) * 0.004
             images.append((image + noise).clamp(0, 1))
-            labels.append(name)
-            names.append(f"{name}_v{k:02d}")
-            positions.append(k)
-    return images, labels, names, positions
+    return images, *plym_layout()

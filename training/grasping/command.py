@@ -31,7 +31,7 @@ from ftorch.space.draw import draw_features, grid, save_rgb, titled
 from training.cli.arguments import at_least, number
 from training.cli.devices import machine, resolve_device
 from training.cli.jobs import check_seeds, device_options, run_folders, run_jobs, run_options
-from training.cli.outputs import EVENTS, RunFolder
+from training.cli.outputs import EVENTS, Command, RunFolder
 from training.cli.parallel import reach_ray, share_idle_cores
 from training.plots import figure_rgb
 from training.recognition.report import write_json
@@ -39,7 +39,7 @@ from training.recognition.report import write_json
 from .experiment import EXPERIMENTS, GraspFold, simulate_pool
 from .figures import error_figure, grasp_figure, reduction_figure
 from .haptics import HapticController
-from .report import grasp_columns, results, seed_study, write_markdown
+from .report import grasp_columns, reduction_words, results, seed_study, write_markdown
 
 FOLD_KIND = "grasp-fold"
 OPTIONS = ("t_dtheta", "finger_choice", "mu0_split")  # the learner's settings on the command line and in the report
@@ -267,7 +267,8 @@ def grasp_command(args) -> int:
     check_seeds(args)
     start = time.perf_counter()
     out = Path(args.out or f"runs/grasp-{args.experiment}")
-    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite) as folder:
+    with RunFolder(out, Path(args.logdir) if args.logdir else out / "tensorboard", args.resume, args.overwrite,
+                   Command.GRASP) as folder:
         args.checkpoints = folder.out  # where an interrupted run continues from (training/run.py main)
         reach_ray(args.ray)
         folder.clear()  # the inputs are checked (the simulator needs no files)
@@ -305,8 +306,7 @@ def _grasp(args, folder: RunFolder, start: float) -> int:
     if args.seeds > 1:
         for mode, study in report["seeds"]["reduction"].items():
             cued, error = report["seeds"]["poor_cued"][mode], report["seeds"]["error_median_deg"][mode]
-            print(f"{args.seeds} seeds, {mode}: poor-grasp reduction mean {study['mean']:.0%} +- {study['sd']:.0%}, "
-                  f"worst {study['worst']:.0%} (seed {study['worst_seed']}); poor cued mean {cued['mean']:.2f}; "
+            print(f"{args.seeds} seeds, {mode}: {reduction_words(study, ' +- ')}; poor cued mean {cued['mean']:.2f}; "
                   f"median orientation error worst {error['worst']:.1f} deg (seed {error['worst_seed']})")
     print(f"{time.perf_counter() - start:.1f} s; report: {out / 'report.md'} and {out / 'report.json'}; "
           f"TensorBoard: tensorboard --logdir {logdir}")

@@ -57,13 +57,18 @@ def grasp_figure(columns: dict[str, list[dict]], title: str) -> Figure:
 
 
 def reduction_figure(study: dict, title: str) -> Figure:
-    """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent."""
+    """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent; a seed
+    without poor haptic grasps has no reduction: it is left out, and the legend says how many were."""
     figure, ax = subplots(figsize=(4.2, 2.8))
     bins = np.arange(-20, 105, 5.0)
     for n, mode in enumerate(study["reduction"]):
         key = (lambda e: e["poor_grasp_fraction"]) if mode == "offline" else (lambda e: e["online"]["poor_grasp_fraction"])
-        values = [100 * (key(e)["reduction"] or 0.0) for e in study["runs"]]
-        ax.hist(np.clip(values, bins[0], bins[-1]), bins=bins, alpha=0.7, color=f"C{n}", label=f"{mode} (n={len(values)} seeds)")
+        reductions = [key(e)["reduction"] for e in study["runs"]]
+        values = [100 * r for r in reductions if r is not None]
+        left = len(reductions) - len(values)
+        note = f"; {left} left out: no poor haptic grasps" if left else ""
+        ax.hist(np.clip(values, bins[0], bins[-1]), bins=bins, alpha=0.7, color=f"C{n}",
+                label=f"{mode} (n={len(values)} seeds{note})")
     ax.set_xlabel("reduction of poor grasps by the cue, % (mu_0 > 0.4)")
     ax.set_ylabel("seeds")
     ax.legend(fontsize=7)

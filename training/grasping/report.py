@@ -50,10 +50,37 @@ def results(evaluations: list[dict]) -> dict:
     }
 
 
-def _spread(values: list[float], seeds: list[int], worse_is_lower: bool = True) -> dict:
-    worst = int(np.argmin(values) if worse_is_lower else np.argmax(values))
-    return {"mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1)) if len(values) > 1 else 0.0,
-            "worst": float(values[worst]), "worst_seed": seeds[worst]}
+def _spread(values: list[float | None], seeds: list[int], worse_is_lower: bool = True) -> dict:
+    """mean, sd (0 for one value), worst value and its seed over the seeds whose value is not None
+    (a reduction where a seed had no poor haptic grasps to reduce); ``n``: how many seeds count,
+    ``not_available``: how many were left out. None of them: mean, sd, worst and worst_seed are None."""
+    kept = [(v, s) for v, s in zip(values, seeds) if v is not None]
+    counts = {"n": len(kept), "not_available": len(values) - len(kept)}
+    if not kept:
+        return {"mean": None, "sd": None, "worst": None, "worst_seed": None, **counts}
+    data = [v for v, _ in kept]
+    worst = int(np.argmin(data) if worse_is_lower else np.argmax(data))
+    return {"mean": float(np.mean(data)), "sd": float(np.std(data, ddof=1)) if len(data) > 1 else 0.0,
+            "worst": float(data[worst]), "worst_seed": kept[worst][1], **counts}
+
+
+def reduction_words(spread: dict, sd: str = ", sd ") -> str:
+    """A seed study's poor-grasp reduction in words (report.md, the command's last lines): mean, sd
+    (after ``sd``) and worst over the seeds that had poor haptic grasps to reduce, and how many had none."""
+    total, left = spread["n"] + spread["not_available"], spread["not_available"]
+    if spread["mean"] is None:
+        return (f"poor-grasp reduction not available (none of the {total} seeds had poor haptic grasps to reduce)" if total > 1
+                else "poor-grasp reduction not available (the seed had no poor haptic grasps to reduce)")
+    words = (f"poor-grasp reduction mean {spread['mean']:.0%}{sd}{spread['sd']:.0%}, worst {spread['worst']:.0%} "
+             f"(seed {spread['worst_seed']}")
+    if left:
+        words += (f"; mean over {spread['n']} of {total} seeds; {left} seed{'s' if left > 1 else ''} "
+                  f"had no poor haptic grasps to reduce")
+    return words + ")"
+
+
+def _percent(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.0%}"
 
 
 def seed_study(reports: list[dict]) -> dict:
@@ -76,7 +103,7 @@ def seed_study(reports: list[dict]) -> dict:
     if all("online" in e for e in runs):
         modes["online"] = [e["online"] for e in runs]
     return {"runs": runs,
-            "reduction": {m: _spread([e["poor_grasp_fraction"]["reduction"] or 0.0 for e in es], seeds) for m, es in modes.items()},
+            "reduction": {m: _spread([e["poor_grasp_fraction"]["reduction"] for e in es], seeds) for m, es in modes.items()},
             "poor_cued": {m: _spread([e["poor_grasp_fraction"]["cued"] for e in es], seeds, False) for m, es in modes.items()},
             "error_median_deg": {m: _spread([e["orientation_error_deg"]["median"] for e in es], seeds, False)
                                  for m, es in modes.items()}}
@@ -109,7 +136,7 @@ THESIS = {  # what the thesis reports in words (6.5); it gives histograms, not n
 
 def _block(title: str, res: dict) -> list[str]:
     e, p = res["orientation_error_deg"], res["poor_grasp_fraction"]
-    reduction = "n/a" if p["reduction"] is None else f"{p['reduction']:.0%}"
+    reduction = _percent(p["reduction"])
     return [f"### {title}", "",
             "| | haptic only | cued |", "|---|---|---|",
             f"| mu_0 median / p90 | {res['mu0']['haptic']['median']:.3f} / {res['mu0']['haptic']['p90']:.3f} "
@@ -155,17 +182,16 @@ def _seed_table(study: dict) -> list[str]:
     for e in study["runs"]:
         p, err = e["poor_grasp_fraction"], e["orientation_error_deg"]
         squares = e["cued_fingers"].get("square", {})
-        row = (f"| {e['seed']} | {p['haptic']:.2f} | {p['cued']:.2f} | {p['reduction'] or 0:.0%} | "
+        row = (f"| {e['seed']} | {p['haptic']:.2f} | {p['cued']:.2f} | {_percent(p['reduction'])} | "
                f"{err['median']:.1f} / {err['p90']:.1f} | {squares.get('3', 0)} of {sum(squares.values())} |")
         if online:
             q = e["online"]["poor_grasp_fraction"]
-            row += f" {q['cued']:.2f} | {q['reduction'] or 0:.0%} |"
+            row += f" {q['cued']:.2f} | {_percent(q['reduction'])} |"
         lines.append(row)
     lines.append("")
     for mode, r in study["reduction"].items():
         cued, error = study["poor_cued"][mode], study["error_median_deg"][mode]
-        lines.append(f"{mode}: poor-grasp reduction mean {r['mean']:.0%}, sd {r['sd']:.0%}, worst {r['worst']:.0%} "
-                     f"(seed {r['worst_seed']}); poor cued mean {cued['mean']:.2f}, worst {cued['worst']:.2f} (seed "
+        lines.append(f"{mode}: {reduction_words(r)}; poor cued mean {cued['mean']:.2f}, worst {cued['worst']:.2f} (seed "
                      f"{cued['worst_seed']}); median orientation error mean {error['mean']:.1f} deg, worst "
                      f"{error['worst']:.1f} deg (seed {error['worst_seed']}).")
     return lines

@@ -11,6 +11,11 @@ from ftorch.space.draw import draw_features, feature_legend, grid, save_rgb, tit
 from training.cli.outputs import Ledger
 
 
+def class_files(label) -> tuple[str, str]:
+    """The files a fold writes named after class ``label``: its figure 4.8 and its network's BIF."""
+    return f"{label}_features.png", f"{label}.bif"
+
+
 def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading: str = "learned features",
                      views: int | None = None) -> list[tuple[str, np.ndarray]]:
     """Figure 4.7 / 5.2 ("features": each class's features present in its middle training view)
@@ -45,7 +50,8 @@ def feature_pictures(learner: DistinctiveFeatureLearner, env: ImageSet, heading:
         every = grid(drawn, min(5, len(drawn)))
         net = learner.networks[first]
         key = feature_legend(net.features, range(1, len(net.features) + 1), every.shape[1])
-        pictures.append((f"{first}_features", titled(np.concatenate([every, key]), f"{heading}: {first}'s features in its training views")))
+        pictures.append((Path(class_files(first)[0]).stem,
+                         titled(np.concatenate([every, key]), f"{heading}: {first}'s features in its training views")))
     return pictures
 
 

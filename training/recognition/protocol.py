@@ -11,6 +11,7 @@ classes in 128x128, so long runs write every minute and lose at most that on int
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field, fields
@@ -96,6 +97,7 @@ class RunConfig:
     augment: int = 0
     dynamic: bool = False
     incremental: bool = False
+    images: str | None = None  # the task's fingerprint (Task.fingerprint): which pixels the run learned and tested on
 
     def to_dict(self) -> dict:
         """JSON-ready, the learner's settings in line where the field stands."""
@@ -115,6 +117,19 @@ class RunConfig:
     def new_learner(self, fold: int) -> DistinctiveFeatureLearner:
         """A fresh learner for fold ``fold`` with these settings."""
         return DistinctiveFeatureLearner(self.learner, seed=self.fold_seed(fold), device=self.device)
+
+
+def same_images(task: Task, config: dict, run: str, data) -> None:
+    """InputError where ``task``'s views are not the images the run ``config`` recorded
+    (:attr:`RunConfig.images`): e.g. a copy of the data with the same names and mirrored images;
+    a note where the run, written before runs recorded them, cannot tell."""
+    recorded = config.get("images")
+    if recorded is None:
+        print(f"note: {run} does not record which images it learned from; those in {data} are taken as they are",
+              file=sys.stderr)
+    elif recorded != task.fingerprint:
+        raise InputError(f"--data {data}: these are not the images {run} learned and tested on (the same names "
+                         "hold other pixels, or other views were chosen): give the run's own images")
 
 
 @dataclass
@@ -205,7 +220,8 @@ class Fold:
         stored = data.get("config")
         if isinstance(stored, dict):  # a run written before these options existed ran with their defaults
             defaults = RunConfig(self.config.task).to_dict()
-            stored = {**{k: defaults[k] for k in ("leak", "primitives", "calibrate", "dynamic")}, **stored}
+            stored = {**{k: defaults[k] for k in ("leak", "primitives", "calibrate", "dynamic")},
+                      "images": self.config.images, **stored}  # nor did it record its images: not checked
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")

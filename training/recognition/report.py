@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -155,6 +156,12 @@ def _p(value: float) -> str:
     return "" if value == 0 else f"{value:.2f}".lstrip("0") if value < 1 else f"{value:.2f}"
 
 
+def cell(text) -> str:
+    """``text`` as one Markdown table cell: a ``|`` escaped, a control character (a newline in a
+    folder's name) written as its escape, so that a class name cannot break the table."""
+    return re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\x{ord(m[0]):02x}", str(text)).replace("|", "\\|")
+
+
 def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
     cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in Outcome),
              f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
@@ -208,7 +215,7 @@ def added_table(folds: list[dict]) -> list[str]:
             "|---" * (2 + 2 * len(folds)) + "|"]
     rows = []
     for n, first in enumerate(folds[0]["added"]):
-        cells = [str(first["classes"]), str(first["class"])]
+        cells = [str(first["classes"]), cell(first["class"])]
         for f in folds:
             cells += [str(f["added"][n]["sampled"]), str(f["added"][n]["stages"])]
         rows.append("| " + " | ".join(cells) + " |")
@@ -217,7 +224,7 @@ def added_table(folds: list[dict]) -> list[str]:
 
 def confusion_table(rows: dict, classes: list, proportions: bool = False) -> list[str]:
     """Table 4.3: recognized-as counts for correct/wrong results, amb./cnf./ign., features per class."""
-    head = ["| class | " + " | ".join(classes) + " | amb. | cnf. | ign. | # feats. BN |",
+    head = ["| class | " + " | ".join(map(cell, classes)) + " | amb. | cnf. | ign. | # feats. BN |",
             "|---" * (len(classes) + 5) + "|"]
     out, total = [], None
 
@@ -229,7 +236,7 @@ def confusion_table(rows: dict, classes: list, proportions: bool = False) -> lis
         n = sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"] if proportions else 1
         values = [r["as"][k] / max(n, 1) for k in classes] + [r[k] / max(n, 1) for k in ("ambiguous", "confused", "ignorant")]
         total = values if total is None else [a + b for a, b in zip(total, values)]
-        out.append(f"| {c} | " + " | ".join(fmt(v) for v in values) + f" | {r['features']:.0f} |")
+        out.append(f"| {cell(c)} | " + " | ".join(fmt(v) for v in values) + f" | {r['features']:.0f} |")
     label = "avg." if proportions else "sum"
     scale = len(classes) if proportions else 1
     feats = np.mean([rows[c]["features"] for c in classes]) if proportions else sum(rows[c]["features"] for c in classes)
@@ -239,12 +246,12 @@ def confusion_table(rows: dict, classes: list, proportions: bool = False) -> lis
 
 def ambiguity_table(rows: dict, classes: list) -> list[str]:
     """Table 4.4: for ambiguous results, how often each class (diagonal) and its false positives occurred."""
-    head = ["| class | " + " | ".join(classes) + " |", "|---" * (len(classes) + 1) + "|"]
+    head = ["| class | " + " | ".join(map(cell, classes)) + " |", "|---" * (len(classes) + 1) + "|"]
     out = []
     for c in classes:
         cells = [(f"*{rows[c]['ambiguous']}*" if rows[c]["ambiguous"] else "") if k == c else
                  (str(rows[c]["ambiguous_with"][k]) if rows[c]["ambiguous_with"][k] else "") for k in classes]
-        out.append(f"| {c} | " + " | ".join(cells) + " |")
+        out.append(f"| {cell(c)} | " + " | ".join(cells) + " |")
     return head + out
 
 

@@ -27,6 +27,7 @@ from ..data.datasets import Task
 from ..data.perturb import KINDS, perturb, save_examples
 from .peers import PixelNN, SiftMatcher, score
 from .protocol import test_block
+from .report import cell
 
 SETS = ("clean", *KINDS)
 PEERS = ("pixel_nn", "sift")
@@ -248,7 +249,7 @@ def feature_tables(result: dict) -> list[str]:
     lines += ["", "## Every node", "", "| fold | class | node | type | " + " | ".join(f"own: {n}" for n in sets)
               + " | other: clean | " + " | ".join(f"flipped: {n}" for n in flips) + " |",
               "|---|---|---|---|" + "---|" * (len(sets) + 1 + len(flips))]
-    lines += [f"| {f['fold']} | {r['class']} | {r['node']} | {r['type']} | {cells(r['own'], sets)} | "
+    lines += [f"| {f['fold']} | {cell(r['class'])} | {r['node']} | {r['type']} | {cells(r['own'], sets)} | "
               f"{cells(r['other'], ['clean'])} | {cells(r['flipped'], flips)} |" for f in result["folds"] for r in f.get("nodes", [])]
     return lines + [""]
 

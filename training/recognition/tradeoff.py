@@ -39,7 +39,7 @@ from ftorch.space.record import FeatureSpace
 
 from ..data.datasets import Task, load_task
 from .peers import PixelNN, SiftMatcher, score, sift_descriptors
-from .protocol import RunConfig, test_block
+from .protocol import RunConfig, same_images, test_block
 from .robustness import fold_sets, views
 
 SIDES = (4, 8, 16, 32, None)  # pixel 1-NN image sides; None: as stored
@@ -95,20 +95,48 @@ def settings(configs: list[dict], runs: list[Path]) -> list[str]:
     """A name for each run: the options in which the runs differ (else the folder's name); an option
     a run's config does not record (written before the option existed) ran at its default."""
     configs = [{**RunConfig(c["task"]).to_dict(), **c} for c in configs]
-    keys = [k for k in configs[0] if k not in ("seed", "data", "device") and len({json.dumps(c.get(k)) for c in configs}) > 1]
+    keys = [k for k in configs[0] if k not in ("seed", "data", "device", "images") and len({json.dumps(c.get(k)) for c in configs}) > 1]
     return [", ".join(f"{k} {c.get(k)}" for k in keys) if keys else run.name for c, run in zip(configs, runs)]
 
 
 def common_task(configs: list[dict], runs: list[Path], data: str | None) -> Task:
-    """The one task all runs learned (same data, classes, views, size; for Plym the same seed)."""
+    """The one task all runs learned (same data, classes, views, size, images; for Plym the same
+    seed), loaded, and checked to be the images the runs learned (:func:`same_images`)."""
     keys = TASK_KEYS + (("seed",) if configs[0]["task"] == "plym" else ())
     for config, run in zip(configs[1:], runs[1:]):
         differ = [k for k in keys if config.get(k) != configs[0].get(k)]
+        differ += ["images"] if None not in (config.get("images"), configs[0].get("images")) and \
+            config["images"] != configs[0]["images"] else []
         if differ:
             raise InputError(f"--runs {run} and {runs[0]} learned different tasks ({', '.join(differ)} differ): "
                              "the front compares methods on the same splits")
     c = configs[0]
-    return load_task(c["task"], data or c["data"], len(c["classes"]), c["views"], c["size"], c["seed"], c["first_view"])
+    task = load_task(c["task"], data or c["data"], len(c["classes"]), c["views"], c["size"], c["seed"], c["first_view"])
+    for config, run in zip(configs, runs):
+        same_images(task, config, f"--runs {run}", data or c["data"])
+    return task
+
+
+def fold_weights(learners: list[Learner]) -> dict[int, float]:
+    """What each fold's test views weigh in a run's figures (module doc)."""
+    weights: dict[int, float] = {}
+    for x in learners:
+        weights[x.fold] = weights.get(x.fold, 0.0) + x.weight
+    return weights
+
+
+def common_splits(loaded: list[tuple[dict, list[Learner]]], runs: list[Path]) -> dict[int, float]:
+    """The fold weights all runs share; InputError where their folds or seeds differ: a run of one
+    fold, or of more seeds (whose extra seeds train fold 1 only), tests other views or weighs them
+    otherwise, so its figures and the peers' would not be on the same splits."""
+    first = fold_weights(loaded[0][1])
+    for (_, learners), run in zip(loaded[1:], runs[1:]):
+        other = fold_weights(learners)
+        if {k: round(w, 9) for k, w in other.items()} != {k: round(w, 9) for k, w in first.items()}:
+            shown = lambda w: ", ".join(f"fold {k} {v:.2f}" for k, v in sorted(w.items()))  # noqa: E731
+            raise InputError(f"--runs {run} and {runs[0]} did not test on the same splits (test views weighted "
+                             f"{shown(other)} against {shown(first)}): give runs of the same --folds and --seeds")
+    return first
 
 
 def keypoint_budgets(largest: int) -> list[int | None]:
@@ -219,14 +247,12 @@ def tradeoff(runs: list[Path], kinds: list[str], seed: int, space: FeatureSpace,
     configs = [c for c, _ in loaded]
     task = common_task(configs, runs, data)
     named = list(zip(settings(configs, runs), [learners for _, learners in loaded]))
-    fold_weights: dict[int, float] = {}
-    for x in loaded[0][1]:
-        fold_weights[x.fold] = fold_weights.get(x.fold, 0.0) + x.weight
+    weights = common_splits(loaded, runs)
     ours, rows = learner_points(task, named, kinds, seed, space, progress)
-    peers = peer_points(task, fold_weights, kinds, seed, progress)
+    peers = peer_points(task, weights, kinds, seed, progress)
     points = ours + peers
     return {"runs": [str(r) for r in runs], "task": configs[0]["task"], "data": data or configs[0]["data"],
-            "classes": configs[0]["classes"], "sets": kinds, "seed": seed, "fold_weights": fold_weights,
+            "classes": configs[0]["classes"], "sets": kinds, "seed": seed, "fold_weights": weights,
             "points": [asdict(p) for p in points], "budgets": budget_rows(points), "learners": rows,
             "seconds": time.perf_counter() - start}
 
