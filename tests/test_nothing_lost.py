@@ -232,8 +232,8 @@ def test_a_log_folder_holding_another_runs_tensorboard_runs_is_refused(tmp_path,
 @pytest.fixture(scope="module")
 def plym_learner():
     """A learner of three built-in Plym solids (data not used to choose MIN_LEVELS) and its test views."""
-    from training.data.datasets import plym_task
-    task = plym_task(size=40, classes=3, views=8)
+    from training.data.datasets import load_task
+    task = load_task("plym", classes=3, views=8, size=40)
     train, test = task.fold(1)
     learner = DistinctiveFeatureLearner(seed=0).fit([task.view(i) for i in train], [task.labels[i] for i in train],
                                                     stages=0, max_cycles=6)
