@@ -31,11 +31,18 @@ search (alg. 4.8: all its methods' candidates on all its images): the time of bo
 differ in some bit, and whether more features or more images in a call cause it. Merging is what
 bigger candidate batches would do; values that differ would change the run, so they say whether it
 is exact.
+
+``python -m training.bench contrast [--data DIR] [--trials N] --json PATH`` is the evidence behind
+``ftorch.images.MIN_LEVELS``: a learner of fold 1 (stage 0; COIL objects 1-4 of ``--data`` as stored,
+12 views each, else the rendered Plym task) answers on its test views transformed by a*I + b in
+float32, with the offset then removed exactly; how many answers change, against how many float32
+steps the views' range spans (the baseline: the untransformed views' answers).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from typing import NamedTuple
@@ -47,6 +54,7 @@ import torch
 from ftorch import FeatureSpace, ScaleSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
+from ftorch.images import MIN_LEVELS
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.exact import information
@@ -519,6 +527,40 @@ def print_report(report: dict) -> None:
               f"ratio {e['ratio_vs_reference']:.0f}  max error vs reference {e['max_error_vs_reference']:.1e}")
 
 
+def contrast(args) -> dict:
+    """The ``contrast`` benchmark (module doc): per trial, the steps of float32 the transformed views'
+    range spans (the fewest over the views) and how many of their answers differ from the originals'."""
+    task = (load_task("coil", args.data, 4, 12) if args.data else load_task("plym", classes=4, views=12, size=40))
+    train, test = task.fold(1)
+    learner = DistinctiveFeatureLearner(seed=0).fit([task.view(i) for i in train], [task.labels[i] for i in train],
+                                                    stages=0, max_cycles=8)
+    views = [task.view(i).double() for i in test]
+    original = learner.predict(views)
+    rng = np.random.default_rng(args.seed)
+    trials = []
+    for _ in range(args.trials):
+        a = 10 ** rng.uniform(-3, 3)
+        b = a / 10 ** rng.uniform(2, 5) / np.finfo(np.float32).eps * rng.uniform(1, 2) * rng.choice([-1, 1])
+        given = [(v * a + b).float() for v in views]  # what a user's float32 conversion keeps
+        steps = min(float(x.max() - x.min()) / float(np.spacing(np.float32(x.abs().max()))) for x in given)
+        answers = learner.predict([x.double() - float(x.min()) for x in given])  # the offset removed exactly
+        trials.append({"a": a, "b": b, "steps": steps, "changed": sum(x != y for x, y in zip(answers, original))})
+    changed = [t["steps"] for t in trials if t["changed"]]
+    return {"task": task.name, "views": len(views), "trials": trials, "min_levels": MIN_LEVELS,
+            "most_steps_with_a_change": max(changed, default=None),
+            "fewest_steps_without_a_change": min((t["steps"] for t in trials if not t["changed"]), default=None)}
+
+
+def print_contrast(report: dict) -> None:
+    for low, high in ((0, 1e3), (1e3, 3e3), (3e3, 1e4), (1e4, 3e4), (3e4, 1e5), (1e5, math.inf)):
+        band = [t for t in report["trials"] if low <= t["steps"] < high]
+        if band:
+            print(f"{low:8.0f} to {high:8.0f} steps: {len(band):3d} trials, answers changed in {sum(t['changed'] > 0 for t in band):3d} "
+                  f"({sum(t['changed'] for t in band)} of {len(band) * report['views']} answers)")
+    print(f"answers changed at up to {report['most_steps_with_a_change']} steps; ftorch refuses float images of fewer than "
+          f"{report['min_levels']}")
+
+
 def parser() -> argparse.ArgumentParser:
     top = Parser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command", required=True)
@@ -532,6 +574,11 @@ def parser() -> argparse.ArgumentParser:
     p = commands.add_parser("batching", help="feature values one call per search against the value cache's calls")
     p.add_argument("--data", help="a COIL-20 folder (images as stored); default: the rendered Plym task")
     p.add_argument("--classes", type=at_least(2, "classes"), default=None, help="the first N classes (default: COIL 6, Plym all)")
+    p.add_argument("--json", help="write the figures to this JSON file")
+    p = commands.add_parser("contrast", help="answers against the float32 steps a transformed image's range spans")
+    p.add_argument("--data", help="a COIL-20 folder (images as stored); default: the rendered Plym task")
+    p.add_argument("--trials", type=at_least(1, "trials", 10000), default=60, help="transforms drawn (default 60)")
+    p.add_argument("--seed", type=at_least(0, "a seed", 2**31 - 1), default=0, help="seed of the transforms (default 0)")
     p.add_argument("--json", help="write the figures to this JSON file")
     return top
 
@@ -547,6 +594,9 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "batching":
             report = batching(args)
             print_batching(report)
+        elif args.command == "contrast":
+            report = contrast(args)
+            print_contrast(report)
         else:
             resolve_device(args.device)
             report = features(args)

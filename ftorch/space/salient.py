@@ -14,7 +14,8 @@
   and near-flat maxima whose descriptors match any flat region (the text uses no prominence
   threshold; the default 0.01 is far below any real structure).
 - Flat images have no salient points: a point is kept only where one of its five basis responses
-  exceeds ``min_response`` in magnitude (default 1e-5, on images in [0, 1]). Rounding noise on a
+  exceeds ``min_response`` in magnitude (default 1e-5, on images whose range
+  :func:`~ftorch.images.contrast_normalized` brought into (1/2, 1], so the floor is relative to it). Rounding noise on a
   constant image stays below 1e-7; a single pixel one grey level (1/255) off its surroundings
   already gives 6e-4, so the floor removes noise and nothing an 8-bit image can show. Without it
   the relative threshold alone would keep hundreds of "maxima" of that noise.
