@@ -23,11 +23,20 @@ With no command at all it runs recognize on the built-in Plym-like task into run
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
 if __name__ == "__main__":  # Ctrl-C while torch is still loading is one line too (main takes over after)
-    signal.signal(signal.SIGINT, lambda *_: (print("interrupted", file=sys.stderr), sys.exit(130)))
+    def _loading_interrupted(*_) -> None:
+        """Nothing is written before main, so the process ends at once (and a second Ctrl-C is
+        ignored); SystemExit raised here could land in Python code that torch's C++ is running
+        while it loads, which then aborts ("terminate called ..., SIGABRT")."""
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print("interrupted", file=sys.stderr, flush=True)
+        os._exit(130)
+
+    signal.signal(signal.SIGINT, _loading_interrupted)
 
 import argparse  # noqa: E402
 import threading  # noqa: E402
@@ -51,8 +60,31 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
-def _terminated(*_) -> None:
-    raise KeyboardInterrupt  # SIGTERM (a cluster's scheduler, kill) stops a run as Ctrl-C does
+def _interrupted(*_) -> None:
+    """SIGINT (Ctrl-C) or SIGTERM (a cluster's scheduler, kill, timeout): the first one stops the run
+    as a KeyboardInterrupt; any later one is ignored. Otherwise a second Ctrl-C in quick succession
+    raised another KeyboardInterrupt in the first one's cleanup (the end of the workers, the join of
+    the process pool's thread at exit: "Exception ignored in threading._shutdown") or, once Python had
+    put SIGINT's default action back on its way out, killed the runner (exit status -2, not 130).
+    SIG_IGN, unlike a Python handler, is kept until the process has ended."""
+    sys.unraisablehook = _RaceIgnored(sys.unraisablehook)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+class _RaceIgnored:
+    """``sys.unraisablehook`` once the run is interrupted: a signal that came a moment before SIG_IGN
+    was set is reported by Python as "Signal N ignored due to race condition" (bpo-43406), a line
+    for a signal that was meant to be ignored, so it is dropped; anything else goes to ``hook``."""
+
+    def __init__(self, hook):
+        self.hook = hook
+
+    def __call__(self, unraisable) -> None:
+        if not (isinstance(unraisable.exc_value, OSError)
+                and str(unraisable.exc_value).endswith("ignored due to race condition")):
+            self.hook(unraisable)
 
 
 def _thread_failed(failure) -> None:
@@ -64,8 +96,8 @@ def _thread_failed(failure) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _terminated)
+    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGTERM, _interrupted)
     threading.excepthook = _thread_failed
     argv = sys.argv[1:] if argv is None else argv
     args = parser().parse_args(argv or ["recognize"])

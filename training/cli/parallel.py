@@ -17,6 +17,10 @@ again cannot help: they end the run at once (one line, as every command error).
   thread count (the sequential run, with all cores in one process, gives the same report). A
   worker watches its parent: if the runner dies without ending it (SIGKILL), the worker exits
   within a second instead of finishing its task and then waiting for ever to hand it over.
+  Workers ignore SIGINT from their start: a Ctrl-C reaches the whole process group, and it is the
+  runner's to take; the runner then ends them (:func:`_stop`). They hold no named semaphore (tqdm's
+  lock is a thread lock there), so none is left for the resource tracker to release, and warn
+  about, after them.
 - ``ray=ADDRESS``: Ray tasks of one CPU each (``ray.init(address=ADDRESS)``; ``local`` starts a
   local instance with ``workers`` CPUs). The address must be ``local``, ``auto``, ``HOST:PORT`` or
   ``ray://HOST[:PORT]``; a HOST:PORT is first reached over TCP with a timeout of
@@ -29,6 +33,7 @@ import errno
 import logging
 import os
 import re
+import signal
 import socket
 import threading
 import time
@@ -88,9 +93,15 @@ def _on_cluster(function: Callable, threads: int, argument):
 
 
 def _start_worker(busy) -> None:
-    """A local worker process's initializer: remember the runner's count of busy workers, and watch
-    the runner (module doc)."""
+    """A local worker process's initializer: ignore SIGINT (it came blocked from :func:`_submit`),
+    write progress bars under a thread lock instead of tqdm's default multiprocessing one (a named
+    semaphore of this process, left to the resource tracker when :func:`_stop` ends it), remember the
+    runner's count of busy workers, and watch the runner (module doc)."""
     global _busy
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    tqdm.set_lock(threading.RLock())
     _busy = busy
     threading.Thread(target=_watch_parent, args=(os.getppid(),), name="watch-parent", daemon=True).start()
 
@@ -161,7 +172,7 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker, initargs=(busy,))
     try:
         with tqdm(total=len(arguments), desc="tasks", unit="task", disable=not progress) as bar:
-            pending = {pool.submit(call, a): i for i, a in enumerate(arguments)}
+            pending = {_submit(pool, call, a): i for i, a in enumerate(arguments)}
             while pending:
                 future = next(as_completed(pending))
                 i = pending.pop(future)
@@ -175,7 +186,7 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
                     again = attempts[i] <= RETRIES
                     bar.write(f"{names[i]} failed ({_describe(error)}); {'running it again' if again else 'giving up'}")
                     if again:
-                        pending[pool.submit(call, arguments[i])] = i
+                        pending[_submit(pool, call, arguments[i])] = i
                     else:
                         failures[names[i]] = _describe(error)
                         bar.update(1)
@@ -188,6 +199,21 @@ def _in_processes(function: Callable, arguments: Sequence, names: Sequence[str],
     if failures:
         raise TasksFailed(failures)
     return results
+
+
+def _submit(pool: ProcessPoolExecutor, call: Callable, argument):
+    """``pool.submit(call, argument)`` with SIGINT blocked in this thread meanwhile (as multiprocessing
+    starts its resource tracker): a worker process that it starts inherits the mask, so a Ctrl-C
+    cannot interrupt the worker's start (a traceback from the middle of importing torch) before
+    :func:`_start_worker` ignores SIGINT. A Ctrl-C meanwhile is only delayed to the unblock, or
+    taken at once by another thread of this process."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return pool.submit(call, argument)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        return pool.submit(call, argument)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
