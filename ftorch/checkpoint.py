@@ -249,6 +249,8 @@ def write_target(path) -> Target:
         return Target.REPLACE
     if stat.S_ISFIFO(st.st_mode) or (stat.S_ISCHR(st.st_mode) and st.st_rdev == _null_device()):
         return Target.IN_PLACE
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: a folder is there, not a file")
     raise InputError(f"{path}: {_kind(st.st_mode)} is there, not a regular file; ftorch writes regular files "
                      "(and into a pipe, /dev/null or its own standard output), and does not replace anything else")
 

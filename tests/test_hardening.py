@@ -115,7 +115,7 @@ def test_every_damaged_field_of_a_learner_file_is_refused(saved, damage, tmp_pat
     path.write_text(json.dumps(data))
     with pytest.raises(InputError, match="damaged learner checkpoint"):
         DistinctiveFeatureLearner.load(path)
-    assert run.main(["evaluate", "--learner", str(path), "--data", str(tmp_path), "--out", str(tmp_path / "e")]) == 2
+    assert run.main(["evaluate", "--learner", str(path), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "e")]) == 2
     assert "damaged learner checkpoint" in one_line(capsys)
 
 

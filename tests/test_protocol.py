@@ -240,7 +240,7 @@ def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task,
     (["recognize", "--n-fgen", "0"], "--n-fgen: 0: expected a number of candidates (an integer from 1 to 1000)"),
     (["recognize", "--size", "8"], "--size: 8: expected an image side in pixels (an integer from 9 to 8192)"),
     (["recognize", "--task", "coil", "--data", "/nonexistent"], "no such folder"),
-    (["evaluate", "--learner", "/nonexistent.json", "--data", "."], "no such checkpoint file"),
+    (["evaluate", "--learner", "/nonexistent.json", "--data", "images"], "no such checkpoint file"),
 ])
 def test_bad_runs_get_one_clear_line(argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # outputs are checked, hence made, before anything else

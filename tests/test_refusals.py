@@ -224,7 +224,7 @@ def test_a_flat_image_trains_and_evaluates(tmp_path):
 def test_an_integer_of_5000_digits_in_a_learner_file_is_one_line(tmp_path, capsys):
     path = tmp_path / "learner.json"
     path.write_text('{"format": "ftorch", "kind": "learner", "version": 4, "learner": {"n_ex": ' + "9" * 5000 + "}}")
-    assert exit_code(["evaluate", "--learner", str(path), "--task", "folder", "--data", str(tmp_path),
+    assert exit_code(["evaluate", "--learner", str(path), "--task", "folder", "--data", str(tmp_path / "data"),
                       "--out", str(tmp_path / "e")]) == 2
     assert "not a readable checkpoint" in one_line(capsys)
 

@@ -42,7 +42,7 @@ def test_salient_draws_the_builtin_scene_without_images(tmp_path):
 def test_bad_input_is_one_line_and_exit_code_2(tmp_path):
     bad = tmp_path / "bad.png"
     bad.write_text("no pixels here")
-    done = subprocess.run([sys.executable, "-m", "training.run", "salient", str(bad), "--out", str(tmp_path)],
+    done = subprocess.run([sys.executable, "-m", "training.run", "salient", str(bad), "--out", str(tmp_path / "out")],
                           capture_output=True, text=True)
     assert done.returncode == 2
     assert done.stderr.strip() == f"error: {bad}: not a readable image file"
@@ -107,3 +107,13 @@ def test_batching_benchmark_replays_the_value_cache_bit_for_bit(tmp_path):
     assert r["replay_differing"] == 0
     assert r["calls"] >= r["merged_calls"] >= r["searches"] > 0 and r["values"] > 0
     assert 0 <= r["values_differing"] <= r["values"] and r["seconds_one_by_one"] > 0 and r["seconds_per_search"] > 0
+
+
+def test_contrast_benchmark_counts_changed_answers_against_float32_steps(tmp_path):
+    target = tmp_path / "contrast.json"
+    assert bench.main(["contrast", "--trials", "3", "--json", str(target)]) == 0
+    report = json.loads(target.read_text())
+    assert report["min_levels"] == 2**15 and report["views"] == 24 and len(report["trials"]) == 3
+    for trial in report["trials"]:
+        assert 0 < trial["steps"] < 1e6 and 0 <= trial["changed"] <= report["views"]
+    assert (report["most_steps_with_a_change"] is None) == all(t["changed"] == 0 for t in report["trials"])

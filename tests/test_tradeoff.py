@@ -267,7 +267,7 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 2  # no --overwrite
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 4 and "learned different tasks (size differ)" in errors[0] and "is missing" in errors[1]
-    assert "not inside one" in errors[2] and not (runs / "k1" / "front").exists()
+    assert "lies inside --runs" in errors[2] and not (runs / "k1" / "front").exists()
 
 
 def test_runs_are_named_by_the_options_they_differ_in_and_older_configs_by_their_defaults():

@@ -278,7 +278,9 @@ def _reported_command(out: Path) -> Command | None:
 class RunFolder:
     """A run's ``out`` and ``logdir`` held for the run (module doc): ``with RunFolder(...) as folder``
     locks them and decides, ``folder.clear()`` removes the old run once the inputs are checked,
-    ``folder.ledger`` records what the new run writes."""
+    ``folder.ledger`` records what the new run writes. ``evaluate``, ``salient`` and ``robustness``
+    hold theirs with ``overwrite`` and never clear it: each writes its files over its own earlier
+    ones, atomically, so a failed write (a full disk) keeps the earlier file whole."""
 
     def __init__(self, out, logdir, resume: bool, overwrite: bool, command: Command, can_resume: bool = True):
         if resume and overwrite:

@@ -84,7 +84,6 @@ def _evaluate(args, device, folder: RunFolder) -> int:
               "confusion": confusion(recognitions, env.labels, classes, networks),
               "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
-    folder.clear()
     folder.ledger.files(out / "evaluate.json", out / "evaluate.md")
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.learner} on {args.data}", "",

@@ -35,10 +35,12 @@ def robustness_command(args) -> int:
     if args.test_information is not None:
         LearnerSettings(test_information=args.test_information)  # refuses a bad threshold early
     run = Path(args.run_folder)
-    if not run.is_dir():
-        raise InputError(f"--run {run}: not a run folder of recognize (no such folder)")
     out = Path(args.out) if args.out else run / "robustness"
     apart({"--out": out}, {"--data": args.data or _recorded_data(run)})  # before a folder is made, let alone written
+    if args.out:
+        writable_folder(out)  # a file there, or a folder that cannot be written: before the run is read
+    if not run.is_dir():
+        raise InputError(f"--run {run}: not a run folder of recognize (no such folder)")
     # results written inside the run folder belong to the run: the run is locked meanwhile, and they
     # are recorded in its ledger, so --overwrite of the run replaces them and nothing else; elsewhere
     # the folder is robustness's own (a run of another command there is refused)
@@ -46,7 +48,7 @@ def robustness_command(args) -> int:
         with locked(run, "--run"):
             return _robustness(args, device, kinds, run, writable_folder(out), Ledger(str(run)))
     with RunFolder(out, out, False, True, Command.ROBUSTNESS, can_resume=False) as folder:
-        return _robustness(args, device, kinds, run, folder.out, folder.ledger, folder)
+        return _robustness(args, device, kinds, run, folder.out, folder.ledger)
 
 
 def _recorded_data(run: Path) -> str | None:
@@ -58,10 +60,8 @@ def _recorded_data(run: Path) -> str | None:
     return data if isinstance(data, str) else None
 
 
-def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger,
-                folder: RunFolder | None = None) -> int:
-    """The body of :func:`robustness_command` once its output folder is held (``folder``: its own,
-    cleared once the run and its images are checked; None: inside the run)."""
+def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger) -> int:
+    """The body of :func:`robustness_command` once its output folder is held."""
     try:
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
@@ -77,8 +77,6 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
     except (KeyError, TypeError) as err:
         raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     same_images(task, config, f"--run {run}", data)
-    if folder is not None:
-        folder.clear()
     start = time.perf_counter()
     space = FeatureSpace().to(device)
     answering = {"evidence": args.evidence} if args.evidence != "learned" else {}

@@ -32,7 +32,6 @@ def salient_command(args) -> int:
         space = FeatureSpace(truncate=args.truncate).to(device)
         with torch.no_grad():
             records = space.records(images, progress=len(images) > 4, names=[str(p) for p in names])
-        folder.clear()
         _draw(records, names, images, folder)
     return 0
 
