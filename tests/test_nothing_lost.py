@@ -337,6 +337,17 @@ def test_images_changed_under_a_run_are_refused_as_resume_refuses_them(tmp_path,
     assert "written by a different run configuration" in one_line(capsys)
 
 
+def test_a_built_in_task_rendered_otherwise_than_for_the_run_is_named_as_such(capsys):
+    from training.data.datasets import load_task
+    from training.recognition.protocol import same_images
+    task = load_task("plym", classes=2, views=2, size=32)
+    same_images(task, {"images": task.fingerprint}, "--run R", None)
+    with pytest.raises(InputError, match="the plym task renders other images than those --run R learned"):
+        same_images(task, {"images": "0" * 32}, "--run R", None)
+    same_images(task, {}, "--run R", None)
+    assert "--run R does not record which images it learned from; the plym task" in capsys.readouterr().err
+
+
 # -- 10. names, labels and files ---------------------------------------------------------------------------
 def test_one_name_per_image():
     images = [np.random.default_rng(k).random((32, 32)) for k in range(3)]

@@ -125,9 +125,12 @@ def same_images(task: Task, config: dict, run: str, data) -> None:
     a note where the run, written before runs recorded them, cannot tell."""
     recorded = config.get("images")
     if recorded is None:
-        print(f"note: {run} does not record which images it learned from; those in {data} are taken as they are",
-              file=sys.stderr)
+        print(f"note: {run} does not record which images it learned from; "
+              f"{f'those in {data}' if data else 'the ' + task.name + ' task'} are taken as they are", file=sys.stderr)
     elif recorded != task.fingerprint:
+        if data is None:  # a built-in task, rendered by this version otherwise than by the run's
+            raise InputError(f"the {task.name} task renders other images than those {run} learned and tested on "
+                             "(another version of ftorch made the run): train it again")
         raise InputError(f"--data {data}: these are not the images {run} learned and tested on (the same names "
                          "hold other pixels, or other views were chosen): give the run's own images")
 
