@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..images import as_image, as_image_batch, contrast_normalized
 from .primitives import BLOB, CORNER, DESCRIPTOR, EDGEL, EDGEL_SLOTS, PartKind
 from .salient import Points, SalientPoints
-from .scale_space import _PLANS, ScaleSpace, ScaleSpaceOutput
+from .scale_space import PLANS, ScaleSpace, ScaleSpaceOutput
 from .steering import steer
 from .texture import TextureGrid
 
@@ -317,13 +317,13 @@ class FeatureSpace(nn.Module):
     def matrices_nbytes(self, images: Sequence) -> int:
         """Bytes of the filter matrices :meth:`records` builds and caches for these images (or float32
         images of these (H, W) shapes): one scale-space and one texture plan per size and dtype, at
-        most the ``_PLANS`` largest at once (the caches' size); an upper bound known before building them."""
+        most the ``PLANS`` largest at once (the caches' size); an upper bound known before building them."""
         keys = {(tuple(image.shape[-2:]), image.dtype) if isinstance(image, Tensor) else (tuple(image), torch.float32)
                 for image in images}
         sizes = sorted(self.scale_space.plan_nbytes(height, width, dtype)
                        + self.texture.plan_nbytes(height, width, self.scale_space.num_levels(height, width), dtype)
                        for (height, width), dtype in keys)
-        return sum(sizes[-_PLANS:])
+        return sum(sizes[-PLANS:])
 
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:

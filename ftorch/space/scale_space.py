@@ -39,7 +39,7 @@ from .kernels import band_matrix, band_span, derivative_kernels, kernel_radius, 
 from .steering import cartesian_from_basis
 
 _SQRT3_2 = math.sqrt(3) / 2
-_PLANS = 8  # cached plans per module (image size, device, dtype)
+PLANS = 8  # cached plans per module (image size, device, dtype)
 # Widths up to DENSE_WIDTH run the horizontal pass as one product with dense (W, W) band matrices, as
 # this module always did: every image size the project uses (128x128 and anything up to 1024 columns)
 # keeps its responses bit for bit, and the reports stay byte for byte. Wider images tile the pass by
@@ -68,9 +68,9 @@ def _ieee_convolutions(device: torch.device):
 
 
 def _planned(plans: dict, key: tuple, build):
-    """``plans[key]``, built by ``build()`` where missing; the oldest plan goes beyond ``_PLANS``."""
+    """``plans[key]``, built by ``build()`` where missing; the oldest plan goes beyond ``PLANS``."""
     if key not in plans:
-        if len(plans) >= _PLANS:
+        if len(plans) >= PLANS:
             plans.pop(next(iter(plans)))
         plans[key] = build()
     return plans[key]
