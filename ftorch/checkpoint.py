@@ -239,10 +239,8 @@ def write_target(path) -> Target:
     path = Path(path)
     try:
         st = os.stat(path)
-    except FileNotFoundError:
-        return Target.REPLACE  # nothing there, or a link to nothing: the write makes the file
-    except OSError:
-        return Target.REPLACE  # e.g. a file where a folder should be: the write itself says why, naming path
+    except OSError:  # nothing there or a link to nothing (the write makes the file), or a file where a
+        return Target.REPLACE  # folder should be (the write itself says why, naming path)
     if _standard_stream(st) is not None:
         return Target.IN_PLACE
     if stat.S_ISREG(st.st_mode):

@@ -11,15 +11,16 @@ import torch
 from .errors import InputError
 
 
-def as_device(value, option: str = "device") -> torch.device:
+def as_device(value, option: str = "device", expected: str = "cpu, cuda, cuda:N") -> torch.device:
     """``value`` (a :class:`torch.device` or its name: cpu, cuda, cuda:N) as a device this machine
-    has; one InputError naming ``option`` where it is not a device name or the device is absent."""
+    has; one InputError naming ``option`` (and what it takes, ``expected``) where it is not a device
+    name or the device is absent."""
     try:
         device = torch.device(value)
     except (RuntimeError, TypeError, ValueError):
         device = None
     if device is None or device.type not in ("cpu", "cuda") or (device.type == "cpu" and device.index):
-        raise InputError(f"{option} {value!r}: expected cpu, cuda, cuda:N" + (" or auto" if option.startswith("--") else ""))
+        raise InputError(f"{option} {value!r}: expected {expected}")
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError(f"{option} {value}: CUDA is not available on this machine")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():

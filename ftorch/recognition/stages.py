@@ -144,8 +144,9 @@ def taught_order(classes, known: list) -> list:
         repeated = [c for c, n in Counter(classes).items() if n > 1]
     except TypeError as err:
         raise InputError(f"classes: {err}") from None
-    unknown = [c for c in classes if c not in set(known)]
-    missing = [c for c in known if c not in set(classes)]
+    listed, knowns = set(classes), set(known)
+    unknown = [c for c in classes if c not in knowns]
+    missing = [c for c in known if c not in listed]
     for problem, found in (("not a class of the images", unknown), ("listed twice", repeated), ("left out", missing)):
         if found:
             raise InputError(f"classes: {found[0]!r} is {problem}; list each of the images' {len(known)} classes "
@@ -168,7 +169,7 @@ class Schedule:
         self.incremental, self.versions = incremental, versions
         self.classes = env.classes() if classes is None else taught_order(classes, env.classes())
         self.progress = Progress() if progress is None else progress
-        limit = AUTO_LIMIT if stages is None else stages + 1
+        limit = AUTO_LIMIT if self.stages is None else self.stages + 1
         self.limit = min(limit, INCREMENTAL_LIMIT + 1) if incremental else limit
 
     def taught(self, phase: int | None = None) -> list:

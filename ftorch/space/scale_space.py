@@ -48,7 +48,7 @@ PLANS = 8  # cached plans per module (image size, device, dtype)
 # 16 x 16000 image, the tiles are 3 W (T + 2r). The tiled sums are the same to rounding (1e-12 in
 # float64, tested), not bit for bit.
 DENSE_WIDTH = 1024
-_WIDE_TILE = 32  # output columns per horizontal tile (at least 2r), as the vertical tiles
+TILE = 32  # output rows of a vertical tile and columns of a horizontal one, at least (2r, where larger)
 
 
 @contextmanager
@@ -76,9 +76,15 @@ def _planned(plans: dict, key: tuple, build):
     return plans[key]
 
 
-def _tiled_numbers(n: int, tile: int, radius: int) -> int:
+def _tile(radius: int) -> int:
+    """Outputs per tile of a pass whose kernel has this radius: :data:`TILE`, or 2r where larger."""
+    return max(TILE, 2 * radius)
+
+
+def _tiled_numbers(n: int, radius: int) -> int:
     """Upper bound of the numbers per kernel in the tiles of an n-long pass: each tile of T outputs
     reads at most min(n, T + 2 radius) inputs."""
+    tile = _tile(radius)
     return sum(min(b - a + 2 * radius, n) * (b - a) for a in range(0, n, tile) for b in [min(a + tile, n)])
 
 
@@ -205,16 +211,15 @@ class ScaleSpace(nn.Module):
             horizontal = horizontal.to(device=device, dtype=dtype)
         else:
             horizontal = []
-            for a in range(0, width, max(_WIDE_TILE, 2 * radius)):
-                b = min(a + max(_WIDE_TILE, 2 * radius), width)
+            for a in range(0, width, _tile(radius)):
+                b = min(a + _tile(radius), width)
                 c0, c1 = band_span(a, b, radius, width)
                 block = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
                 block = torch.from_numpy(block.reshape(c1 - c0, 3 * (b - a)))
                 horizontal.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
-        tile = max(32, 2 * kernel_radius(self.sigma(k), self.truncate))
         tiles = []
-        for a in range(0, height, tile):
-            b = min(a + tile, height)
+        for a in range(0, height, _tile(radius)):
+            b = min(a + _tile(radius), height)
             lo, hi = band_span(a, b, radius, height)
             v = [torch.from_numpy(band_matrix(kern[c], height, np.arange(a, b), (lo, hi))) for c in range(3)]
             groups = torch.stack([
@@ -241,8 +246,8 @@ class ScaleSpace(nn.Module):
             if width <= DENSE_WIDTH:
                 total += 3 * width * width * itemsize
             else:
-                total += 3 * _tiled_numbers(width, max(_WIDE_TILE, 2 * radius), radius) * itemsize
-            total += 6 * _tiled_numbers(height, max(32, 2 * radius), radius) * itemsize
+                total += 3 * _tiled_numbers(width, radius) * itemsize
+            total += 6 * _tiled_numbers(height, radius) * itemsize
         return total
 
     def _conv_weights(self, height: int, width: int, levels: int, device, dtype):

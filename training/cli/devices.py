@@ -13,7 +13,7 @@ def resolve_device(name: str) -> torch.device:
     """'auto' -> CUDA when present else CPU; 'cpu'; 'cuda' or 'cuda:N' (refused clearly without CUDA)."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return as_device(name, "--device")
+    return as_device(name, "--device", "cpu, cuda, cuda:N or auto")
 
 
 def machine(device: torch.device) -> dict:

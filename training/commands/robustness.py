@@ -66,16 +66,14 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
         report = json.loads((run / "report.json").read_text())
         config = report["config"]
         data = args.data or config["data"]
+        recorded = (config["task"], data, len(config["classes"]), config["views"], config["size"], config["seed"],
+                    config["first_view"])
         folds = [f["fold"] for f in report["folds"]]
         if not folds:
             raise ValueError("no folds")
     except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
         raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
-    try:
-        task = load_task(config["task"], data, len(config["classes"]), config["views"],
-                         config["size"], config["seed"], config["first_view"])
-    except (KeyError, TypeError) as err:
-        raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
+    task = load_task(*recorded)  # outside the try: its own refusals (a missing --data) are one line already
     same_images(task, config, f"--run {run}", data)
     start = time.perf_counter()
     space = FeatureSpace().to(device)

@@ -100,13 +100,11 @@ def settings(configs: list[dict], runs: list[Path]) -> list[str]:
 
 
 def common_task(configs: list[dict], runs: list[Path], data: str | None) -> Task:
-    """The one task all runs learned (same data, classes, views, size, images; for Plym the same
-    seed), loaded, and checked to be the images the runs learned (:func:`same_images`)."""
+    """The one task all runs learned (same data, classes, views, size; for Plym the same seed),
+    loaded, and checked to be the images each run learned (:func:`same_images`), so the same images."""
     keys = TASK_KEYS + (("seed",) if configs[0]["task"] == "plym" else ())
     for config, run in zip(configs[1:], runs[1:]):
         differ = [k for k in keys if config.get(k) != configs[0].get(k)]
-        differ += ["images"] if None not in (config.get("images"), configs[0].get("images")) and \
-            config["images"] != configs[0]["images"] else []
         if differ:
             raise InputError(f"--runs {run} and {runs[0]} learned different tasks ({', '.join(differ)} differ): "
                              "the front compares methods on the same splits")
