@@ -161,7 +161,7 @@ def test_the_thesis_primitives_draw_exactly_as_the_two_kinds_always_did(records)
         def record(self, _):
             return env_records
 
-    made = mine(Method.PRIMITIVE, 40, {}, One(), 0, "a", frozenset(), [])
+    made = mine(Method.PRIMITIVE, 40, {}, One(), [0], "a", frozenset(), [])
     expected = [random_texel(env_records, 0, old) if torch.rand(1, generator=old) < 0.5 else random_edgel_pair(env_records, 0, old)
                 for _ in range(40)]
     assert made == [f for f in expected if f is not None]

@@ -98,10 +98,11 @@ class CandidateGenerator:
             self._located = (env, by_image)
         return by_image.setdefault(sample, {})
 
-    def __call__(self, method: Method, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet, sample: int,
-                 char, disc: frozenset, failed: list) -> list:
-        """``n`` (n_fgen) candidates of one method for characterizing ``char`` against ``disc`` with
-        the sample image ``sample``, drawn together; ``failed``: earlier candidates of this search."""
+    def __call__(self, method: Method, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet,
+                 samples: list[int], char, disc: frozenset, failed: list) -> list:
+        """``n`` candidates of one method for characterizing ``char`` against ``disc``, drawn together;
+        the methods that sample images take the k-th draw from ``samples[k % len(samples)]`` (the
+        thesis: one sample image); ``failed``: earlier candidates of this search."""
         generator = self.generator
         if method is Method.REUSE:  # reuse a feature of an unrelated class
             related = {char, *disc}
@@ -110,9 +111,9 @@ class CandidateGenerator:
             pool = list(dict.fromkeys(pool))
             return [pick(pool, generator) for _ in range(n)] if pool else []
         if method is Method.PRIMITIVE:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
-            record, kinds = env.record(sample), self.primitives
-            made = [_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](record, 0, generator)
-                    for _ in range(n)]
+            kinds = self.primitives
+            made = [_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](
+                env.record(samples[k % len(samples)]), 0, generator) for k in range(n)]
             made = [f for f in made if f is not None]
             self.sampled += len(made)
             return made
@@ -121,9 +122,9 @@ class CandidateGenerator:
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
-            located = self._occurrences(env, sample)
-            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator, located=located)
-                    for _ in range(n)]
+            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator,
+                                     located=self._occurrences(env, sample))
+                    for sample in (samples[k % len(samples)] for k in range(n))]
             made = [f for f in made if f is not None]
             self.sampled += len(made)
             return made

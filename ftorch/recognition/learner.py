@@ -93,13 +93,14 @@ TRAINING_STATE = ("generator", "discriminates", "selected", "usage", "instances"
 class Presentation(NamedTuple):
     """What one training presentation did: its first recognition, its :class:`Result`, the residual
     entropy per class in bits; ``pair`` and ``ksd``: alg. 5.2's choice and its KSD_{c,d} (eq. 5.1),
-    None where no class was left uncertain."""
+    None where no class was left uncertain; ``searched``: the classes of the search it made, if any."""
 
     recognition: Recognition
     result: Result
     entropy: dict
     pair: tuple | None = None
     ksd: float | None = None
+    searched: tuple | None = None  # (characterized class, discriminated classes) of its search (alg. 4.8, 5.1)
 
 
 class Ahead:
@@ -405,7 +406,7 @@ class DistinctiveFeatureLearner:
         char, disc, char_is_true = chosen
         learned = self._search(env, image, char, disc, char_is_true, t_ksd,
                                lambda after: (char in after.recognized) == char_is_true)
-        return Presentation(first, Result.LEARNED if learned else Result.FAILED, entropy)
+        return Presentation(first, Result.LEARNED if learned else Result.FAILED, entropy, searched=(char, disc))
 
     def present(self, env: ImageSet, images, t_ksd: float = 0.0) -> list[Presentation]:
         """Present ``images`` in their order, each by :meth:`learn`: one cycle of alg. 5.3.
@@ -455,7 +456,8 @@ class DistinctiveFeatureLearner:
             return Presentation(rec, Result.CORRECT, entropy, (c, d), weakest)
         learned = self._search(env, image, c, frozenset({d}), c in true, t_ksd,
                                lambda after: outcome(after.recognized, true) is Outcome.CORRECT)
-        return Presentation(rec, Result.EXPERT if learned else Result.EXPERT_FAILED, entropy, (c, d), weakest)
+        return Presentation(rec, Result.EXPERT if learned else Result.EXPERT_FAILED, entropy, (c, d), weakest,
+                            (c, frozenset({d})))
 
     def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
         """Alg. 5.2 (:func:`ftorch.recognition.expertise.choose_pair` with this learner's ``redundancy``): (c, d,
@@ -526,15 +528,19 @@ class DistinctiveFeatureLearner:
         distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition of image)``.
         Alg. 4.10 (the five methods) is called up to ``search_rounds`` times (alg. 5.1's "until")."""
         sample = image if char_is_true else pick(env.examples(char, self.settings.n_ex, self.generator), self.generator)
-        examples = env.examples(char, self.settings.n_ex, self.generator)
+        own = env.examples(char, self.settings.n_ex, self.generator)
+        examples = list(own)
         for d in sorted(disc, key=str):  # a fixed order: set order varies with the process hash seed
             examples += env.examples(d, self.settings.n_ex, self.generator)
         images = list(dict.fromkeys([image, sample, *examples]))
+        contrast = self.settings.contrast
+        samples = [sample] if contrast == 1 else list(dict.fromkeys([sample, *own]))
         net = self.networks[char]
         failed: list = []
         for method in [m for _ in range(self.settings.search_rounds) for m in METHODS]:
             tried = set(failed)
-            candidates = [f for f in self.candidates(method, self.settings.n_fgen, self.networks, env, sample, char, disc, failed)
+            candidates = [f for f in self.candidates(method, self.settings.n_fgen * contrast, self.networks, env,
+                                                     samples, char, disc, failed)
                           if f not in net and f not in tried]
             candidates = list(dict.fromkeys(candidates))
             if not candidates:
@@ -542,7 +548,7 @@ class DistinctiveFeatureLearner:
             self.counting.measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
             cuts, powers = self.counting.discretize(char, candidates, self.settings.cut_position, disc)
-            for candidate, cut, power in zip(candidates, cuts.tolist(), powers.tolist()):
+            for candidate, cut, power in self._in_order(candidates, cuts.tolist(), powers.tolist(), t_ksd):
                 if power <= 0 or power < t_ksd:
                     failed.append(candidate)
                     continue
@@ -562,6 +568,17 @@ class DistinctiveFeatureLearner:
                 self.counting.estimate(net, self.settings.pseudocount, self.settings.leak)
                 failed.append(candidate)
         return False
+
+    def _in_order(self, candidates: list, cuts: list, powers: list, t_ksd: float) -> list[tuple]:
+        """(candidate, cut-point, power) in the order a search tests them: as drawn (alg. 4.10); with
+        ``contrast`` N > 1 those that fail the power test first, then the n_fgen most distinctive on
+        the search's images, most distinctive first (ties in drawing order)."""
+        drawn = list(zip(candidates, cuts, powers))
+        if self.settings.contrast == 1:
+            return drawn
+        weak = [item for item in drawn if item[2] <= 0 or item[2] < t_ksd]
+        strong = [item for item in drawn if not (item[2] <= 0 or item[2] < t_ksd)]
+        return weak + sorted(strong, key=lambda item: -item[2])[:self.settings.n_fgen]
 
     # -- state ---------------------------------------------------------------------------------
     def _networks_state(self, table: FeatureTable) -> list:

@@ -55,6 +55,10 @@ class LearnerSettings(Settings):
     primitives: tuple[Primitive, ...] = option(
         THESIS_PRIMITIVES, f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
         "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
+    contrast: int = option(1, "contrastive search: each generation method draws N x n_fgen candidates, those "
+                           "that sample images from the misrecognized or sample image and the class's other examples "
+                           "in turn, and tries the n_fgen most distinctive on the search's images first (1: alg. 4.10 "
+                           "as printed)", "N", at_least=1, at_most=100, what="a factor")
     calibrate: bool = option(False, "calibrated counting: count each node's cut-point and CPT on the training "
                              "views other than those its search selected it on, where enough remain (cross-fitting)")
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Hashable, Iterable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 
 import torch
 
@@ -47,6 +47,9 @@ STAGES_LIMIT = 100
 CYCLES_LIMIT = 1000
 
 
+REPEATED = 2  # failed searches on one image for one pair of classes in a stage that a stage names (FailedSearch)
+
+
 def next_target(t: float, ksd_min: float) -> float:
     """Alg. 5.3 step 3 as DESIGN.md reads it."""
     t = 1 - (1 - min(ksd_min, t)) / 2
@@ -54,26 +57,64 @@ def next_target(t: float, ksd_min: float) -> float:
 
 
 @dataclass(frozen=True)
+class FailedSearch:
+    """Searches (alg. 4.8, 5.1) that found no feature: on training image ``image`` (its index in the
+    image set, and its ``name`` there), characterizing ``label`` against ``against``, ``searches`` times."""
+
+    image: int
+    name: str
+    label: Hashable
+    against: tuple
+    searches: int = 1
+
+    def to_dict(self) -> dict:
+        return {"image": self.image, "name": self.name, "class": self.label, "against": list(self.against),
+                "searches": self.searches}
+
+    @classmethod
+    def from_dict(cls, entry: dict) -> "FailedSearch":
+        return cls(entry["image"], entry["name"], entry["class"], tuple(entry["against"]), entry["searches"])
+
+
+def repeated(failures: Iterable[FailedSearch]) -> tuple[FailedSearch, ...]:
+    """The (image, class, against) that ``failures`` hold ``REPEATED`` times or more, with their
+    counts, most first (then by image): the training images the search fails on again and again."""
+    counts = Counter((f.image, f.name, f.label, f.against) for f in failures for _ in range(f.searches))
+    found = [FailedSearch(*key, n) for key, n in counts.items() if n >= REPEATED]
+    return tuple(sorted(found, key=lambda f: (-f.searches, f.image, str(f.label), tuple(map(str, f.against)))))
+
+
+@dataclass(frozen=True)
 class Cycle:
     """One cycle: training images wrong at their first recognition (with dynamic views: originals
     wrong after the cycle), presentations that added an expert feature, the smallest KSD_{c,d} met
-    (alg. 5.2; 1 when none), features discarded after it (alg. 5.3 step 4) and the nodes left."""
+    (alg. 5.2; 1 when none), features discarded after it (alg. 5.3 step 4), the nodes left, and the
+    searches that failed in it."""
 
     mistakes: int
     expert: int
     ksd_min: float
     discarded: int
     features: int
+    failed: tuple[FailedSearch, ...] = ()
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**{f.name: getattr(self, f.name) for f in fields(self)[:-1]},
+                "failed": [f.to_dict() for f in self.failed]}
+
+    @classmethod
+    def from_dict(cls, entry: dict) -> "Cycle":
+        """A cycle of a checkpoint (one written before failed searches were recorded has none)."""
+        return cls(**{f.name: entry[f.name] for f in fields(cls)[:-1]},
+                   failed=tuple(FailedSearch.from_dict(f) for f in entry.get("failed", [])))
 
 
 @dataclass(frozen=True)
 class Stage:
     """One finished stage (alg. 5.3): its number within the current class's schedule and overall
     (``step``), the classes taught, its t_KSD, cycles, presentations so far, whether the training set
-    was learned, KSD_min(s), whether the target was met, and the per-cycle counts (figure 5.1)."""
+    was learned, KSD_min(s), whether the target was met, the per-cycle counts (figure 5.1), and the
+    searches that failed on one image ``REPEATED`` times or more (:func:`repeated`)."""
 
     stage: int
     step: int
@@ -87,14 +128,18 @@ class Stage:
     mistakes_per_cycle: list[int]
     expert_per_cycle: list[int]
     discarded_per_cycle: list[int]
+    failing: tuple[FailedSearch, ...] = ()
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**{f.name: getattr(self, f.name) for f in fields(self)[:-1]},
+                "failing": [f.to_dict() for f in self.failing]}
 
     @classmethod
     def from_dict(cls, entry: dict) -> "Stage":
-        """The stage fields of a report entry (which may hold more)."""
-        return cls(**{f.name: entry[f.name] for f in fields(cls)})
+        """The stage fields of a report entry (which may hold more; one written before failed
+        searches were recorded has none)."""
+        return cls(**{f.name: entry[f.name] for f in fields(cls)[:-1]},
+                   failing=tuple(FailedSearch.from_dict(f) for f in entry.get("failing", [])))
 
 
 @dataclass(frozen=True)
@@ -212,7 +257,7 @@ class Schedule:
         """One pass over the training images ``indices`` in a fresh order, then discarding (alg. 5.3 step 2)."""
         learner, env, order, versions = self.learner, self.env, self.order, self.versions
         begin = learner.presentations
-        results, ksd_min = [], 1.0
+        results, failed, ksd_min = [], [], 1.0
         views = len(env) // versions
         shown = [i for i in indices if i < views]
         presented = []
@@ -221,8 +266,11 @@ class Schedule:
             if versions > 1:
                 i += views * int(torch.randint(versions, (), generator=order))
             presented.append(i)
-        for p in learner.present(env, presented, self.progress.t_ksd):
+        for i, p in zip(presented, learner.present(env, presented, self.progress.t_ksd)):
             results.append(p.result)
+            if p.result in (Result.FAILED, Result.EXPERT_FAILED) and p.searched is not None:
+                label, against = p.searched
+                failed.append(FailedSearch(i, env.names[i], label, tuple(sorted(against, key=str))))
             if p.ksd is not None:
                 ksd_min = min(ksd_min, p.ksd)
         discarded = learner.discard_unused(since=begin + 1)
@@ -232,7 +280,7 @@ class Schedule:
         else:
             mistakes = sum(r.mistake for r in results)
         return Cycle(mistakes, sum(r is Result.EXPERT for r in results), ksd_min, len(discarded),
-                     sum(len(n.features) for n in learner.networks.values()))
+                     sum(len(n.features) for n in learner.networks.values()), tuple(failed))
 
     def _finish_stage(self) -> Stage:
         state, learner = self.progress, self.learner
@@ -242,7 +290,7 @@ class Schedule:
         met = learned and ksd_min >= t
         stage = Stage(state.stage, len(state.stages), len(self.taught()), t, len(cycles), learner.presentations,
                       learned, ksd_min, met, [c.mistakes for c in cycles], [c.expert for c in cycles],
-                      [c.discarded for c in cycles])
+                      [c.discarded for c in cycles], repeated(f for c in cycles for f in c.failed))
         state.stages.append(stage)
         state.misses = 0 if met else state.misses + 1
         phase_done = (self.stages is None and (t >= 1.0 or state.misses >= 2)) or state.stage + 1 >= self.limit

@@ -165,7 +165,7 @@ class FoldState:
             raise ValueError(f"seconds {state['seconds']!r} is not a duration")
         if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
             raise ValueError("done must be true or false, and cycles, stages and added lists")
-        progress = Progress(state["phase"], state["stage"], state["t_ksd"], [Cycle(**c) for c in state["cycles"]],
+        progress = Progress(state["phase"], state["stage"], state["t_ksd"], [Cycle.from_dict(c) for c in state["cycles"]],
                             [Stage.from_dict(e) for e in state["stages"]], state["misses"], state["done"],
                             state["total_cycles"], [ClassAdded.from_dict(a) for a in state["added"]],
                             state["sampled_before"])

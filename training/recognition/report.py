@@ -289,6 +289,19 @@ COLUMNS = ("Columns, as in the thesis's tables: cls. classes; acc. accuracy (def
            "views by what they were recognized as.")
 
 
+def failing_section(folds: list[dict]) -> list[str]:
+    """The training images the search failed on again and again (alg. 4.8, 5.1), per fold and stage:
+    which image, which classes, how many searches; nothing where there are none."""
+    rows = [f"| {f['fold']} | {s['stage']} | {x['name']} | {x['class']} | {', '.join(map(str, x['against'])) or '-'} | "
+            f"{x['searches']} |" for f in folds for s in f["stages"] for x in s.get("failing", [])]
+    if not rows:
+        return []
+    return ["## Training images the search failed on again and again", "",
+            "Searches for a feature (alg. 4.8, 5.1) that found none, twice or more in one stage for the same image and "
+            "classes: the class characterized, the classes it was to be told from.", "",
+            "| fold | stage | image | class | against | failed searches |", "|---|---|---|---|---|---|", *rows, ""]
+
+
 def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
     classes = report["classes"]
     incremental = report["config"].get("incremental")
@@ -328,6 +341,7 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                   f"{mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
                   f"| SIFT matching (ratio 0.75) | {mean['sift']['clean']:.2f} | "
                   f"{mean['sift']['descriptors_per_view']:.0f} descriptors per view, {mean['sift']['bytes_per_class'] / 1024:.0f} kB |", ""]
+    lines += failing_section(report["folds"])
     if "seeds" in report:
         s = report["seeds"]
         lines += [f"## Seeds (figure 5.5 form): fold {s['fold']}, seeds {s['seeds'][0]}-{s['seeds'][-1]}", "",

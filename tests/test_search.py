@@ -1,0 +1,90 @@
+"""The search for a new feature (alg. 4.8, 5.1): contrastive draws and the training images it fails on."""
+import numpy as np
+import pytest
+
+from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.candidates import Method
+from ftorch.recognition.environment import ImageSet
+from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.stages import REPEATED, FailedSearch, Stage, repeated
+from tests.test_learner import shape
+
+
+def test_repeated_counts_each_image_and_pair_and_keeps_those_failed_again():
+    failures = [FailedSearch(3, "x3", "a", ("b",)), FailedSearch(3, "x3", "a", ("b",)),
+                FailedSearch(3, "x3", "a", ("c",)), FailedSearch(5, "x5", "b", ("a",), 4), FailedSearch(7, "x7", "c", ())]
+    assert REPEATED == 2
+    assert repeated(failures) == (FailedSearch(5, "x5", "b", ("a",), 4), FailedSearch(3, "x3", "a", ("b",), 2))
+    assert repeated([]) == ()
+
+
+def test_a_training_image_no_feature_can_fix_is_named_with_its_classes_and_searches():
+    """Two classes drawn from the very same images: no feature tells them apart, every search fails,
+    and the stage names the images it failed on, each with the classes and the number of searches."""
+    rng = np.random.default_rng(0)
+    pictures = [shape(k % 2, rng.uniform(0, 6.3), rng) for k in range(4)]
+    env = ImageSet(pictures + pictures, [{"a"}] * 4 + [{"b"}] * 4)
+    learner = DistinctiveFeatureLearner(seed=0, n_fgen=2).fit(env, stages=0, max_cycles=3)
+    failing = learner.stages_[0].failing
+    assert failing and all(f.searches >= REPEATED for f in failing)
+    assert all({f.label, *f.against} == {"a", "b"} and f.name == env.names[f.image] for f in failing)
+    assert sum(f.searches for f in failing) <= 3 * 8  # one search per presentation at most
+    back = Stage.from_dict(learner.stages_[0].to_dict())
+    assert back == learner.stages_[0]
+    old = {k: v for k, v in learner.stages_[0].to_dict().items() if k != "failing"}  # a report from before
+    assert Stage.from_dict(old).failing == ()
+
+
+@pytest.fixture(scope="module")
+def shapes_env() -> ImageSet:
+    rng = np.random.default_rng(1)
+    kinds = [i % 3 for i in range(18)]
+    return ImageSet([shape(k, rng.uniform(0, 2 * np.pi), rng) for k in kinds], [{k} for k in kinds])
+
+
+def _watched(learner, monkeypatch):
+    """Record each method's candidates and their distinctive powers, and the features a search adds."""
+    calls, added = [], []
+    generate, discretize = learner.candidates, learner.counting.discretize
+
+    def candidates(method, n, networks, env, samples, char, disc, failed):
+        made = generate(method, n, networks, env, samples, char, disc, failed)
+        calls.append({"method": method, "n": n, "samples": list(samples), "powers": {}})
+        return made
+
+    def powers(label, features, cut_position, against=None):
+        cuts, power = discretize(label, features, cut_position, against)
+        if against is not None and calls:  # the search's call (reestimation passes no classes)
+            calls[-1]["powers"].update(zip(features, power.tolist()))
+        return cuts, power
+
+    monkeypatch.setattr(learner, "candidates", candidates)
+    monkeypatch.setattr(learner.counting, "discretize", powers)
+    original = ClassNetwork.add_feature
+    monkeypatch.setattr(ClassNetwork, "add_feature",
+                        lambda self, f, *a, **k: added.append((len(calls), f)) or original(self, f, *a, **k))
+    return calls, added
+
+
+@pytest.mark.parametrize("contrast", [1, 4])
+def test_a_contrastive_search_tries_the_most_distinctive_of_n_times_the_candidates_first(shapes_env, monkeypatch,
+                                                                                          contrast):
+    """With contrast N, a method draws N x n_fgen candidates, those that sample images taking them from
+    the sample image and the characterized class's other examples in turn, and the first candidate a
+    search tries has the largest distinctive power of its method's draw; with N = 1 (alg. 4.10) one
+    sample image, n_fgen candidates, tried as drawn."""
+    learner = DistinctiveFeatureLearner(seed=0, contrast=contrast, n_fgen=4)
+    calls, added = _watched(learner, monkeypatch)
+    for i in range(12):
+        learner.learn(shapes_env, i)
+    assert calls and {c["n"] for c in calls} == {4 * contrast}
+    sampled = [c for c in calls if c["method"] in (Method.PRIMITIVE, Method.EXPANSION)]
+    most = max(len(c["samples"]) for c in sampled)
+    assert most == 1 if contrast == 1 else most > 1
+    firsts = [(calls[at - 1], f) for k, (at, f) in enumerate(added) if k == 0 or added[k - 1][0] != at]
+    assert firsts
+    best = [call["powers"][f] == max(call["powers"].values()) for call, f in firsts]
+    if contrast == 1:
+        assert not all(best)  # alg. 4.10 tries its draw in order, not by power
+    else:
+        assert all(best)
