@@ -10,7 +10,9 @@ else (no instance list, no value cache, no images). :func:`pack` writes exactly 
   vector (15 or 2 ``float32``), and for every part after the first its placement phi, dtheta, d,
   dsigma (4 ``float32``; the first part's is never used, alg. 3.6); texture: ``uint8`` level k
   (sigma = 2^(k/2)) and its 8 ``float32``; conjunction, disjunction: two ``uint16`` positions of
-  their sub-features in the table;
+  their sub-features in the table; within (a feature bounded to a region, ``ftorch.space.region``):
+  ``uint8`` frame code (:data:`FRAMES`), its x, y and radius (3 ``float32``) and the ``uint16``
+  table position of its inner feature;
 - per network, in class order: P(class) as ``float32``, ``uint16`` node count, then per node its
   feature's ``uint16`` table position, its cut-point (``float32``), ``uint8`` parent count with the
   parents' ``uint16`` node positions, and P(node present | class, parents) for each of the
@@ -27,13 +29,15 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture
+from ..space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture, Within
 from ..space.primitives import PartKind
+from ..space.region import Frame, Region
 from ..space.texture import BINS, level_sigma
 from .bayes import ClassNetwork
 
-CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4}
+CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4, Within: 5}
 KINDS = (PartKind.TEXEL, PartKind.EDGEL)  # a part kind's code is its position
+FRAMES = (Frame.IMAGE, Frame.OBJECT)  # a region frame's code is its position
 LIMIT = 1 << 16  # features per table and nodes per network that a uint16 position can name
 
 
@@ -98,6 +102,14 @@ def _put_feature(out: _Writer, feature: Feature, positions: dict[Feature, int]) 
     elif isinstance(feature, Texture):
         out.put("B", feature.level)
         out.floats(feature.histogram)
+    elif isinstance(feature, Within):
+        region = feature.region
+        disc = np.asarray((region.x, region.y, region.radius), dtype="<f4")
+        if not (np.isfinite(disc).all() and disc[2] > 0):
+            raise InputError(f"{region.describe()}: its x, y or radius has no float32 form (overflow, or radius 0)")
+        out.put("B", FRAMES.index(region.frame))
+        out.floats(disc)
+        out.put("H", positions[feature.feature])
     else:
         out.put("HH", positions[feature.a], positions[feature.b])
 
@@ -142,6 +154,15 @@ def _get_feature(source: _Reader, table: list[Feature]) -> Feature:
         return Texture(level_sigma(level), source.floats(BINS).tolist())
     if kind is None:
         raise ValueError(f"feature type code {code} is not one of {sorted(CODES.values())}")
+    if kind is Within:
+        (frame,) = source.get("B")
+        if frame >= len(FRAMES):
+            raise ValueError(f"region frame code {frame} is not one of {list(range(len(FRAMES)))}")
+        x, y, radius = source.floats(3).tolist()
+        (inner,) = source.get("H")
+        if inner >= len(table):
+            raise ValueError(f"a within refers to feature {inner} before it is defined")
+        return Within(table[inner], Region(FRAMES[frame], x, y, radius))  # a bad radius: InputError, a ValueError
     a, b = source.get("HH")
     if max(a, b) >= len(table):
         raise ValueError(f"a {kind.TYPE} refers to feature {max(a, b)} before it is defined")

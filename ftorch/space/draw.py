@@ -7,7 +7,9 @@ sub-features of a Boolean compound by a dotted line, and an id beside the refere
 Edgels are segments of length 2*sigma along the edge (across the gradient) centred on the
 point; blobs are circles and corners squares of radius sigma, each with a line from the
 centre along its orientation; a texture (7.2.1, no orientation) is a dashed circle of radius
-2 sigma, its window's reach.
+2 sigma, its window's reach. A feature bounded to a region (``Within``) is drawn where it is
+strongest inside the region, with the region's outline, thin, in the feature's colour (a circle in
+the object frame, an ellipse in the image frame of a non-square image).
 """
 from __future__ import annotations
 
@@ -20,10 +22,11 @@ from torch import Tensor
 
 from ..checkpoint import write_atomic
 from ..images import to_uint8
-from .evaluate import feature_values
-from .features import Feature, LocalFeature, Texture
+from .evaluate import bounded_by, feature_values
+from .features import Feature, LocalFeature, Texture, Within
 from .primitives import BLOB, CORNER, EDGEL
 from .record import ImageRecords
+from .region import Region, pixel_ellipse
 from .sampling import placements
 
 EDGEL_COLOUR = (220, 40, 40)
@@ -97,10 +100,34 @@ PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30
            (240, 50, 230), (128, 128, 0), (0, 0, 128), (170, 110, 40), (128, 0, 0), (0, 128, 128)]
 
 
-def _subfeatures(feature: Feature, out: dict) -> None:
-    out.setdefault(feature, len(out))
+def _subfeatures(feature: Feature, out: dict, regions: tuple[Region, ...] = ()) -> None:
+    """Every (part, regions around it) drawn for ``feature``, with the feature to locate for it:
+    the part itself, or the part bounded by those regions (where it is strongest inside them)."""
+    if isinstance(feature, Within):
+        _subfeatures(feature.feature, out, bounded_by(regions, feature.region))
+        return
+    bounded = feature
+    for region in regions:
+        bounded = Within(bounded, region)
+    out.setdefault((feature, regions), bounded)
     for sub in feature.subfeatures():
-        _subfeatures(sub, out)
+        _subfeatures(sub, out, regions)
+
+
+OUTLINE_LIMIT = 1 << 20  # pixels: OpenCV's fixed-point coordinates hold no more (16 * 2^20 < 2^31)
+
+
+def _outline(canvas, region: Region, records: ImageRecords, n: int, zoom: float, colour) -> None:
+    """A region's outline on image n, thin: none where the image has no object frame, or where it
+    reaches beyond ``OUTLINE_LIMIT`` pixels (it could not be drawn exactly; the region is in the legend)."""
+    ellipse = pixel_ellipse(region, records, n)
+    if ellipse is None:
+        return
+    (cx, cy), axes = _centre(*ellipse[:2], zoom), (ellipse[2] * zoom, ellipse[3] * zoom)
+    if max(abs(cx), abs(cy)) + max(axes) > OUTLINE_LIMIT:
+        return
+    cv2.ellipse(canvas, (round(cx * 16), round(cy * 16)), (round(axes[0] * 16), round(axes[1] * 16)), 0, 0, 360,
+                colour, 1, cv2.LINE_AA, 4)
 
 
 def _dotted(canvas, a, b, colour, step: float = 4.0) -> None:
@@ -112,9 +139,15 @@ def _dotted(canvas, a, b, colour, step: float = 4.0) -> None:
               (a[0] + t1 * (b[0] - a[0]), a[1] + t1 * (b[1] - a[1])), colour)
 
 
-def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) -> tuple[float, float] | None:
-    """Draw one feature at its located reference point; returns that point (canvas coordinates)."""
-    x, y, sigma, theta = where[feature]
+def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour, outline=None,
+                  regions: tuple[Region, ...] = ()) -> tuple[float, float] | None:
+    """Draw one feature at its located reference point (inside the ``regions`` around it); returns
+    that point (canvas coordinates). ``outline(region, colour)`` draws the region of a Within."""
+    if isinstance(feature, Within):
+        if outline is not None:
+            outline(feature.region, colour)
+        return _draw_located(canvas, feature.feature, where, zoom, colour, outline, bounded_by(regions, feature.region))
+    x, y, sigma, theta = where[feature, regions]
     if not math.isfinite(x):
         return None
     if isinstance(feature, Texture):
@@ -134,8 +167,8 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour) ->
                 _line(canvas, previous, here, colour, 1)
             previous = here
         return _centre(x, y, zoom)
-    drawn = [at for at in (_draw_located(canvas, sub, where, zoom, colour) for sub in feature.subfeatures())
-             if at is not None]
+    drawn = [at for at in (_draw_located(canvas, sub, where, zoom, colour, outline, regions)
+                           for sub in feature.subfeatures()) if at is not None]
     for a, b in zip(drawn, drawn[1:]):
         _dotted(canvas, a, b, colour)
     return drawn[0] if drawn else None
@@ -169,12 +202,15 @@ def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_
         _subfeatures(f, every)
     where = {}
     if every:
-        found = feature_values(list(every), records[n])
-        for f, j in every.items():
-            where[f] = tuple(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta))
+        found = feature_values(list(every.values()), records[n])
+        for j, key in enumerate(every):
+            where[key] = tuple(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta))
+
+    def outline(region: Region, colour) -> None:
+        _outline(canvas, region, records, n, zoom, colour)
     for k, f in enumerate(features):
         colour = PALETTE[k % len(PALETTE)]
-        point = _draw_located(canvas, f, where, zoom, colour)
+        point = _draw_located(canvas, f, where, zoom, colour, outline)
         if point is not None and ids is not None:
             cv2.putText(canvas, str(ids[k]), (int(point[0]) + 4, int(point[1]) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
                         colour, 1, cv2.LINE_AA)

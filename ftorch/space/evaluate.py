@@ -6,6 +6,12 @@ local feature is matched against the canonical descriptors of all reference poin
 to their orientation. Since steering is orthogonal, the normalised inner product of canonical
 vectors equals eq. 3.13's. Texture features (7.2.1) are matched against the texture grid points
 of their level in the same way. Boolean compounds combine their sub-feature values (3.5.2).
+
+A :class:`~ftorch.space.features.Within` bounds the maximum to the reference points inside its
+regions (``ftorch.space.region``): a point outside counts as no applicable point, as an invalid
+sample does (cosine -1 before the per-image maximum), so an image with none inside gives value 0
+and no location. Its leaves are measured once per (leaf, regions), in groups apart from the
+unbounded leaves, which are measured exactly as without regions (the same groups, the same code).
 """
 from __future__ import annotations
 
@@ -17,9 +23,10 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .features import Feature, LocalFeature, Texture
+from .features import Feature, LocalFeature, Texture, Within
 from .primitives import PartKind
 from .record import ImageRecords
+from .region import Region, inside
 from .sampling import Frames, placements, sample_unmasked, steered
 from .texture import level_sigma
 
@@ -52,8 +59,9 @@ def local_values(features: list[LocalFeature], records: ImageRecords, max_elemen
 
 
 def _local_fields(features: list[LocalFeature], records: ImageRecords, max_elements: int,
-                  located: bool) -> tuple[Tensor, ...]:
-    """:func:`local_values`' fields, or its values alone (a 1-tuple) where not ``located``."""
+                  located: bool, regions: list[tuple[Region, ...]] | None = None) -> tuple[Tensor, ...]:
+    """:func:`local_values`' fields, or its values alone (a 1-tuple) where not ``located``; ``regions``:
+    each feature's regions, whose intersection bounds its maximum (None: none has any)."""
     device, dtype = records.device, records.dtype
     kinds = tuple(p.kind for p in features[0].parts)
     vectors = [torch.tensor([f.parts[i].vector for f in features], device=device, dtype=dtype) for i in range(len(kinds))]
@@ -62,10 +70,40 @@ def _local_fields(features: list[LocalFeature], records: ImageRecords, max_eleme
     n_images, n_points = reference.padded
     if n_points == 0:
         return reference.nothing(len(features), located)
-    chunk = max(1, max_elements // max(1, n_images * n_points * 15 * (2 if len(kinds) > 1 else 1)))
+    bounds = None if regions is None else _Bounds(regions, records, reference)
+    per_feature = n_images * n_points * 15 * (2 if len(kinds) > 1 else 1) + (0 if bounds is None else bounds.elements)
+    chunk = max(1, max_elements // max(1, per_feature))
     results = [_local_chunk([v[s : s + chunk] for v in vectors], params[s : s + chunk], kinds, records, reference,
-                            located) for s in range(0, len(features), chunk)]
+                            located, None if bounds is None else bounds.allowed(s, s + chunk))
+               for s in range(0, len(features), chunk)]
     return tuple(torch.cat(parts) for parts in zip(*results))
+
+
+class _Bounds:
+    """The regions of a group's features over its reference points (K,): each feature's allowed
+    mask, the points inside all its regions (an empty tuple of regions: all points), made chunk by
+    chunk, so that the memory bound holds: a chunk's distinct regions (R, K) and their distance
+    tests, its mask (F, K) and the masked cosines count as ``elements`` per feature."""
+
+    def __init__(self, regions: list[tuple[Region, ...]], records: ImageRecords, reference: "_ReferencePoints"):
+        self.regions, self.records, self.reference = regions, records, reference
+        self.depth = max(len(r) for r in regions)
+        self.elements = (3 * self.depth + 2) * len(reference.image)
+
+    def allowed(self, start: int, stop: int) -> Tensor:
+        """(F, K) bool of features start..stop-1."""
+        chunk = self.regions[start:stop]
+        distinct = list(dict.fromkeys(r for rs in chunk for r in rs))
+        ref = self.reference
+        masks = torch.cat([inside(distinct, self.records, ref.image, ref.x, ref.y),
+                           torch.ones(1, len(ref.image), dtype=torch.bool, device=ref.x.device)])
+        at = {r: i for i, r in enumerate(distinct)}
+        rows = torch.tensor([[at[r] for r in rs] + [len(distinct)] * (self.depth - len(rs)) for rs in chunk],
+                            device=ref.x.device)
+        out = masks[rows[:, 0]]
+        for j in range(1, self.depth):  # the nesting depth: an intersection of regions
+            out &= masks[rows[:, j]]
+        return out
 
 
 class _ReferencePoints:
@@ -123,9 +161,10 @@ class _ReferencePoints:
 
 
 def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, ...], records: ImageRecords,
-                 reference: _ReferencePoints, located: bool) -> tuple[Tensor, ...]:
-    """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14): the
-    fields of :class:`FeatureValues`, or the values alone where not ``located``."""
+                 reference: _ReferencePoints, located: bool, allowed: Tensor | None = None) -> tuple[Tensor, ...]:
+    """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14) over the
+    ``allowed`` points (F, K; None: all): the fields of :class:`FeatureValues`, or the values alone
+    where not ``located``."""
     numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
     observed = (reference.canonical**2).sum(-1).expand_as(numerator)
     valid = None
@@ -144,33 +183,40 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     pattern = sum((v**2).sum(1) for v in vectors)[:, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
     cosine = cosine.clamp_min(0) if valid is None else torch.where(valid, cosine.clamp_min(0), -1.0)
+    if allowed is not None:  # a point outside the regions: no applicable point, as an invalid sample
+        cosine = torch.where(allowed, cosine, -1.0)
     return reference.best(cosine, located)
 
 
 def _texture_fields(features: list[Texture], records: ImageRecords, max_elements: int,
-                    located: bool) -> tuple[Tensor, ...]:
+                    located: bool, regions: list[tuple[Region, ...]] | None = None) -> tuple[Tensor, ...]:
     """Texture features of one level (7.2.1): the Bhattacharyya coefficient of their histograms
-    and those of the level's grid points, a normalised dot product, at its largest per image."""
+    and those of the level's grid points, a normalised dot product, at its largest per image (over
+    the grid points inside each feature's ``regions``, as :func:`_local_fields`)."""
     reference = _ReferencePoints.of(records, features[0].level)
     if reference.padded[1] == 0:
         return reference.nothing(len(features), located)
     vectors = torch.tensor([f.histogram for f in features], device=records.device, dtype=records.dtype)
-    chunk = max(1, max_elements // max(1, len(reference.image) * 2))
+    bounds = None if regions is None else _Bounds(regions, records, reference)
+    chunk = max(1, max_elements // max(1, len(reference.image) * 2 + (0 if bounds is None else bounds.elements)))
     tiny = torch.finfo(records.dtype).tiny
     points = reference.canonical / reference.canonical.norm(dim=1, keepdim=True).clamp_min(tiny)
     results = []
     for start in range(0, len(features), chunk):
         v = vectors[start : start + chunk]
-        cosine = (v / v.norm(dim=1, keepdim=True)) @ points.T
-        results.append(reference.best(cosine.clamp(0, 1), located))
+        cosine = ((v / v.norm(dim=1, keepdim=True)) @ points.T).clamp(0, 1)
+        if bounds is not None:
+            cosine = torch.where(bounds.allowed(start, start + chunk), cosine, -1.0)
+        results.append(reference.best(cosine, located))
     return tuple(torch.cat(parts) for parts in zip(*results))
 
 
 def feature_values(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
     """Values (F, N) of ``features`` in every image of ``records`` and where each is strongest.
 
-    All local features (texels, geometric compounds, the leaves of Boolean compounds) are
-    evaluated once each, batched by structure; ``max_elements`` bounds the gathered tensors.
+    All local features (texels, geometric compounds, textures, the leaves of Boolean compounds)
+    are evaluated once each (once per set of regions around them), batched by structure;
+    ``max_elements`` bounds the gathered tensors.
     """
     return FeatureValues(*_evaluate(features, records, max_elements, located=True))
 
@@ -186,34 +232,49 @@ def _evaluate(features: Sequence[Feature], records: ImageRecords, max_elements: 
     features = list(features)
     if not all(isinstance(f, Feature) for f in features):
         raise InputError("features: every item must be an ftorch Feature")
-    leaves: dict[Feature, int] = {}
+    leaves: dict[tuple[Feature, tuple[Region, ...]], int] = {}
     for feature in features:
-        _collect(feature, leaves)
-    groups: dict[tuple, list[Feature]] = {}
-    for leaf in leaves:
+        _collect(feature, leaves, ())
+    # leaves without regions form the groups they always formed, and are measured by the same code
+    # (no mask); bounded leaves are grouped apart, so that adding a Within changes no other value
+    groups: dict[tuple, list[tuple[Feature, tuple[Region, ...]]]] = {}
+    for leaf, regions in leaves:
         key = ("texture", leaf.level) if isinstance(leaf, Texture) else tuple(p.kind for p in leaf.parts)
-        groups.setdefault(key, []).append(leaf)
-    leaf_values: dict[Feature, tuple[Tensor, ...]] = {}
-    for group in groups.values():
-        measure = _texture_fields if isinstance(group[0], Texture) else _local_fields
-        result = measure(group, records, max_elements, located)
-        for j, leaf in enumerate(group):
-            leaf_values[leaf] = tuple(t[j] for t in result)
+        groups.setdefault((key, bool(regions)), []).append((leaf, regions))
+    leaf_values: dict[tuple[Feature, tuple[Region, ...]], tuple[Tensor, ...]] = {}
+    for (_, bounded), group in groups.items():
+        measure = _texture_fields if isinstance(group[0][0], Texture) else _local_fields
+        result = measure([leaf for leaf, _ in group], records, max_elements, located,
+                         [regions for _, regions in group] if bounded else None)
+        for j, key in enumerate(group):
+            leaf_values[key] = tuple(t[j] for t in result)
     if not features:
         empty = records.x.new_zeros(0, len(records))
         return (empty,) * (5 if located else 1)
-    rows = [_combine(f, leaf_values) for f in features]
+    rows = [_combine(f, leaf_values, ()) for f in features]
     return tuple(torch.stack(col) for col in zip(*rows))
 
 
-def _collect(feature: Feature, leaves: dict) -> None:
+def bounded_by(regions: tuple[Region, ...], region: Region) -> tuple[Region, ...]:
+    """The regions around a feature inside one more Within: each once, in one order, so that
+    Within(Within(f, a), b), Within(Within(f, b), a) and Within(Within(Within(f, a), b), a) are one leaf."""
+    return tuple(sorted({*regions, region}, key=Region.order))
+
+
+def _collect(feature: Feature, leaves: dict, regions: tuple[Region, ...]) -> None:
+    """Every leaf of ``feature`` with the regions around it (the Withins it lies in)."""
+    if isinstance(feature, Within):
+        _collect(feature.feature, leaves, bounded_by(regions, feature.region))
+        return
     if isinstance(feature, (LocalFeature, Texture)):
-        leaves.setdefault(feature, len(leaves))
+        leaves.setdefault((feature, regions), len(leaves))
     for sub in feature.subfeatures():
-        _collect(sub, leaves)
+        _collect(sub, leaves, regions)
 
 
-def _combine(feature: Feature, leaf_values: dict) -> tuple[Tensor, ...]:
+def _combine(feature: Feature, leaf_values: dict, regions: tuple[Region, ...]) -> tuple[Tensor, ...]:
+    if isinstance(feature, Within):
+        return _combine(feature.feature, leaf_values, bounded_by(regions, feature.region))
     if isinstance(feature, (LocalFeature, Texture)):
-        return leaf_values[feature]
-    return feature.combine(*(_combine(sub, leaf_values) for sub in feature.subfeatures()))
+        return leaf_values[feature, regions]
+    return feature.combine(*(_combine(sub, leaf_values, regions) for sub in feature.subfeatures()))

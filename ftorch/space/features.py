@@ -6,6 +6,8 @@
 - :class:`Texture`: a statistical texture primitive (7.2.1), the intensity histogram around a
   point at a scale (``ftorch.space.texture``); it has no parts and no orientation.
 - :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
+- :class:`Within`: any feature whose maximum (eq. 3.14) runs over the reference points inside a
+  :class:`~ftorch.space.region.Region` only (beyond the thesis: where a feature looks).
 
 Each type carries its own behaviour: its JSON form (``TYPE``, ``to_dict``, ``_from_dict``), its
 parts (a :class:`LocalFeature`, measured at reference points by ``ftorch.space.evaluate``) or the
@@ -31,6 +33,7 @@ from torch import Tensor
 from ..checkpoint import Memo, decode_text, encode_text
 from ..errors import InputError
 from .primitives import PartKind
+from .region import Region
 from .texture import BINS, sigma_level
 
 
@@ -324,6 +327,55 @@ class Disjunction(_Boolean):
     @staticmethod
     def value(a: Tensor, b: Tensor) -> Tensor:
         return torch.maximum(a, b)
+
+
+@dataclass(frozen=True)
+class Within(Feature):
+    """``feature`` bounded to ``region``: its value is its best match over the reference points
+    inside the region only (eq. 3.14 over fewer points; ``ftorch.space.region``), 0 where none is.
+
+    Every leaf of ``feature`` (texel, geometric compound, texture) is restricted by the region: a
+    Boolean compound inside a Within combines its bounded sides, a Boolean of Withins bounds each
+    side by its own region, and Within(Within(f, r1), r2) is f bounded by both (their intersection).
+    Only the reference point must lie inside: a geometric compound's later parts may reach beyond.
+
+    Its components (4.4.1) are ``feature``, the unbounded feature it was refined from, and the
+    components of ``feature`` bounded by the same region. Arcs run from it to them, as from a
+    conjunction (a bounded feature present is its unbounded one present): one direction per type,
+    as :func:`~ftorch.recognition.bayes.compound_arcs` reads it, also where ``feature`` is a
+    disjunction (decision: the arcs only shape the class network, 4.4.1, and stay acyclic, since
+    every component is smaller than its compound).
+    ``subfeatures`` is ``(feature,)``: tables store it first (packing, checkpoints); its values are
+    not a function of the feature's values (``combine``), and ``ftorch.space.evaluate`` measures it.
+    """
+    __hash__ = _CachedHash.__hash__
+    TYPE = "within"
+    feature: Feature
+    region: Region
+
+    def __post_init__(self):
+        if not (isinstance(self.feature, Feature) and isinstance(self.region, Region)):
+            raise InputError("Within bounds a Feature to a Region")
+
+    @property
+    def primitives(self) -> int:
+        return self.feature.primitives
+
+    def to_dict(self) -> dict:
+        return {"type": self.TYPE, "feature": self.feature.to_dict(), "region": self.region.to_dict()}
+
+    @classmethod
+    def _from_dict(cls, data: dict) -> "Within":
+        return cls(Feature.from_dict(data["feature"]), Region.from_dict(data["region"]))
+
+    def subfeatures(self) -> tuple[Feature, ...]:
+        return (self.feature,)
+
+    def components(self) -> list[Feature]:
+        return [self.feature, *(Within(c, self.region) for c in self.feature.components())]
+
+    def describe(self) -> str:
+        return f"{self.feature.describe()} in {self.region.describe()}"
 
 
 CHUNK = 1024  # features per compressed block of a packed table

@@ -1,5 +1,6 @@
 """Generating candidate features from a sample image (alg. 4.10, methods 2 and 3; the texture
-primitive of 7.2.1).
+primitive of 7.2.1), and bounding a feature to a region around its strongest occurrence
+(:func:`localize`, general-to-specific as 3.6 orders the feature space).
 
 Every generated part is measured exactly as :func:`ftorch.space.evaluate.feature_values` measures
 it, so a feature sampled from an image has value 1 at its own reference point there.
@@ -8,6 +9,7 @@ fixes every choice. Each function returns ``None`` where the image offers no sui
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -15,9 +17,10 @@ from torch import Tensor
 
 from ..errors import InputError
 from .evaluate import feature_values
-from .features import Geometric, LocalFeature, Part, Texel, Texture
+from .features import Feature, Geometric, LocalFeature, Part, Texel, Texture, Within
 from .primitives import PartKind
 from .record import ImageRecords
+from .region import Frame, Region, frame_coordinates
 from .sampling import placements, steered_sample
 from .texture import level_sigma
 
@@ -95,7 +98,7 @@ def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator 
     return Geometric((head, _relative_part(records, n, second, _point(records, n, first))))
 
 
-def strongest(feature: LocalFeature, records: ImageRecords, n: int) -> tuple[Tensor, ...] | None:
+def strongest(feature: Feature, records: ImageRecords, n: int) -> tuple[Tensor, ...] | None:
     """Where ``feature`` is strongest in image n (eq. 3.14): (x, y, sigma, theta), or None where it
     has no valid occurrence; measured on that image alone, so the same feature and image always give
     the same numbers (a caller may remember them)."""
@@ -103,6 +106,15 @@ def strongest(feature: LocalFeature, records: ImageRecords, n: int) -> tuple[Ten
     if not bool(torch.isfinite(found.x[0, 0])):
         return None
     return found.x[0, 0], found.y[0, 0], found.sigma[0, 0], found.theta[0, 0]
+
+
+def _occurrence(feature: Feature, records: ImageRecords, n: int, located: dict | None) -> tuple[Tensor, ...] | None:
+    """:func:`strongest`, from and into the caller's memory ``located`` where given."""
+    if located is None:
+        return strongest(feature, records, n)
+    if feature not in located:
+        located[feature] = strongest(feature, records, n)
+    return located[feature]
 
 
 def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, generator: torch.Generator | None = None,
@@ -117,12 +129,7 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     """
     if not isinstance(feature, LocalFeature):
         raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
-    if located is None:
-        occurrence = strongest(feature, records, n)
-    else:
-        if feature not in located:
-            located[feature] = strongest(feature, records, n)
-        occurrence = located[feature]
+    occurrence = _occurrence(feature, records, n, located)
     if occurrence is None:
         return None
     *_, state = placements(occurrence, feature.attitudes())
@@ -133,3 +140,27 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     if q is None:
         return None
     return Geometric((*feature.parts, _relative_part(records, n, q, state)))
+
+
+def localize(feature: Feature, records: ImageRecords, n: int, frame: Frame | str, radius: float,
+             located: dict | None = None) -> Within | None:
+    """``feature`` bounded to a disc of ``radius`` in ``frame`` (``ftorch.space.region``), centred
+    where it is strongest in image n (eq. 3.14, :func:`strongest`; from and into ``located`` as in
+    :func:`expand_geometric`): a more specific feature, general-to-specific (3.6), that keeps its
+    value on image n where its reference point there is what matters (a local feature). A Boolean
+    compound's disc is centred where its stronger side is; the other side's best match may lie outside.
+
+    Where ``feature`` is a Within already, the new region replaces its outermost one and is centred
+    at its strongest occurrence inside that region: narrowing it is the caller's choice of ``radius``.
+    None where image n gives no location (value 0) or, in the object frame, has no object frame.
+    """
+    disc = Region(frame, 0.0, 0.0, radius)  # the frame and radius checked before anything is measured
+    occurrence = _occurrence(feature, records, n, located)
+    if occurrence is None:
+        return None
+    image = torch.tensor([n], device=records.device)
+    u, v = (float(c[0]) for c in frame_coordinates(records, disc.frame, image, occurrence[0][None], occurrence[1][None]))
+    if not (math.isfinite(u) and math.isfinite(v)):
+        return None
+    inner = feature.feature if isinstance(feature, Within) else feature
+    return Within(inner, dataclasses.replace(disc, x=u, y=v))

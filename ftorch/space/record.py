@@ -134,7 +134,8 @@ class ImageRecords:
 
     def __post_init__(self):
         # the reference points of each part kind or texture level, found once per records object
-        # by the feature values (ftorch/space/evaluate.py); records are never changed in place
+        # by the feature values (ftorch/space/evaluate.py), and the images' object frames
+        # (ftorch/space/region.py); records are never changed in place
         self.reference_points: dict = {}
 
     @classmethod

@@ -7,6 +7,9 @@ It shares nothing with the batched path but the records' pyramids and point list
 reference point is visited in a Python loop, alg. 3.6 is followed step by step in scalar
 math, responses are interpolated with ``scipy.ndimage.map_coordinates`` (order 1 in level,
 row, column), steered with the coefficients of eq. 3.8 written out, and eq. 3.13/3.14 applied.
+Textures are matched at their level's grid points one by one, and a region's test (the frames of
+``ftorch.space.region``: the image's own size, the lower medians of the salient points) is written
+out in scalar math.
 """
 from __future__ import annotations
 
@@ -15,10 +18,11 @@ import math
 import numpy as np
 from scipy.ndimage import gaussian_filter, map_coordinates
 
-from .features import Conjunction, Feature, LocalFeature
+from .features import Conjunction, Feature, LocalFeature, Texture, Within
 from .kernels import kernel_radius
 from .primitives import EDGEL
 from .record import ImageRecords
+from .region import Frame, Region
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
@@ -89,10 +93,53 @@ def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: floa
     return max(0.0, float(o @ p / norm)) if norm > 0 else 0.0
 
 
-def reference_value(feature: Feature, records: ImageRecords, n: int) -> float:
-    """Eq. 3.14 (max over the applicable salient points) in image ``n``, Boolean rules of 3.5.2."""
+def _lower_median(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[(len(ordered) - 1) // 2]
+
+
+def region_holds(region: Region, records: ImageRecords, n: int, x: float, y: float) -> bool:
+    """Whether pixel position (x, y) of image ``n`` lies inside ``region``."""
+    if region.frame == Frame.IMAGE:
+        height, width = (int(v) for v in records.sizes[n])
+        u, v = (x + 0.5) / width, (y + 0.5) / height
+    else:
+        points = [(float(records.x[n, p]), float(records.y[n, p])) for p in range(records.mask.shape[1])
+                  if bool(records.mask[n, p])]
+        if not points:
+            return False
+        cx, cy = _lower_median([px for px, _ in points]), _lower_median([py for _, py in points])
+        s = _lower_median([math.hypot(px - cx, py - cy) for px, py in points])
+        if s == 0:
+            return False
+        u, v = (x - cx) / s, (y - cy) / s
+    return (u - region.x) ** 2 + (v - region.y) ** 2 <= region.radius**2
+
+
+def texture_value(feature: Texture, records: ImageRecords, n: int, regions: tuple[Region, ...] = ()) -> float:
+    """Eq. 3.14 for a texture (7.2.1): the largest Bhattacharyya coefficient over the grid points of
+    its level in image ``n`` (inside all ``regions``)."""
+    pattern = np.array(feature.histogram) / np.linalg.norm(feature.histogram)
+    best = 0.0
+    for q in range(records.grid_mask.shape[1]):
+        if not bool(records.grid_mask[n, q]) or int(records.grid_level[n, q]) != feature.level:
+            continue
+        x, y = float(records.grid_x[n, q]), float(records.grid_y[n, q])
+        if all(region_holds(r, records, n, x, y) for r in regions):
+            observed = records.histograms[n, q].double().cpu().numpy()
+            best = max(best, min(1.0, float(observed @ pattern / np.linalg.norm(observed))))
+    return best
+
+
+def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tuple[Region, ...] = ()) -> float:
+    """Eq. 3.14 (max over the applicable salient points, inside all ``regions``) in image ``n``,
+    Boolean rules of 3.5.2; a Within adds its region to those of every leaf inside it."""
+    if isinstance(feature, Within):
+        return reference_value(feature.feature, records, n, (*regions, feature.region))
+    if isinstance(feature, Texture):
+        return texture_value(feature, records, n, regions)
     if not isinstance(feature, LocalFeature):
-        a, b = reference_value(feature.a, records, n), reference_value(feature.b, records, n)
+        a, b = reference_value(feature.a, records, n, regions), reference_value(feature.b, records, n, regions)
         return a * b if isinstance(feature, Conjunction) else max(a, b)
     levels = int(records.levels[n])
     height, width = (int(v) for v in records.sizes[n])
@@ -103,6 +150,8 @@ def reference_value(feature: Feature, records: ImageRecords, n: int) -> float:
         if not bool(records.mask[n, p]) or (int(records.kind[n, p]) == EDGEL) != want_edgel:
             continue
         args = (float(records.x[n, p]), float(records.y[n, p]), float(records.sigma[n, p]), float(records.theta[n, p]))
+        if not all(region_holds(r, records, n, *args[:2]) for r in regions):
+            continue
         value = local_value_at(feature, pyramid, *args)
         if value is not None:
             best = max(best, value)
