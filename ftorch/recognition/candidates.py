@@ -1,10 +1,13 @@
-"""Alg. 4.10: candidate features in order of structural complexity, by five methods.
+"""Alg. 4.10: candidate features in order of structural complexity, by five methods, and a sixth
+where the learner bounds features to regions.
 
 1. reuse a feature of an unrelated class; 2. a new primitive sampled from the sample image, of a
 kind drawn uniformly from the learner's ``primitives`` (the thesis's: texel or edgel pair; the
-statistical texture of 7.2.1 where added); 3. a geometric expansion of a local feature in use (or
-failed before) at its strongest occurrence in the sample image; 4. a conjunction and 5. a
-disjunction of two such features.
+statistical texture of 7.2.1 where added); 2b. (``regions``) a feature in use or failed before,
+bounded to a region around its strongest occurrence in the sample image (``localize``): the whole
+image first, as the thesis measures every feature, then narrower discs, general-to-specific (3.6);
+3. a geometric expansion of a local feature in use (or failed before) at its strongest occurrence
+in the sample image; 4. a conjunction and 5. a disjunction of two such features.
 
 A method's n_fgen candidates are drawn together when the method starts, from the pools as they
 stand then (features in use, failed candidates of earlier methods); the learner measures them in
@@ -19,8 +22,9 @@ from enum import StrEnum
 import torch
 
 from ..errors import InputError
-from ..space.features import Conjunction, Disjunction, LocalFeature
-from ..space.generate import expand_geometric, random_edgel_pair, random_texel, random_texture
+from ..space.features import Conjunction, Disjunction, LocalFeature, Within
+from ..space.generate import expand_geometric, localize, random_edgel_pair, random_texel, random_texture
+from ..space.region import Frame
 from .bayes import ClassNetwork
 from .environment import ImageSet
 
@@ -30,6 +34,7 @@ class Method(StrEnum):
 
     REUSE = "reuse"  # 1: a feature of an unrelated class
     PRIMITIVE = "primitive"  # 2: a new primitive from the sample image
+    REGION = "region"  # 2b: a feature bounded to a region around its strongest occurrence (with ``regions``)
     EXPANSION = "expansion"  # 3: a geometric expansion of a local feature
     CONJUNCTION = "conjunction"  # 4
     DISJUNCTION = "disjunction"  # 5
@@ -65,6 +70,34 @@ def primitive_set(value) -> tuple[Primitive, ...]:
     return tuple(p for p in Primitive if p in chosen)
 
 
+# The first disc of each frame and the smallest (radius in the frame's units, ftorch.space.region):
+# a quarter of the image, or the object's median point distance; each narrowing halves the radius.
+RADII = {Frame.IMAGE: (0.25, 1 / 32), Frame.OBJECT: (1.0, 1 / 8)}
+
+
+def frame_set(value) -> tuple[Frame, ...]:
+    """The frames named by ``value`` (a comma-separated string, empty or "none" for none, or a
+    sequence of names), in :class:`Frame` order; InputError for an unknown or repeated one."""
+    names = ([] if value.strip() in ("", "none") else value.split(",")) if isinstance(value, str) else list(value)
+    try:
+        chosen = [Frame(str(name).strip()) for name in names]
+    except ValueError:
+        raise InputError(f"regions {value!r}: expected none, or a comma-separated choice of {', '.join(Frame)}") from None
+    if len(set(chosen)) != len(chosen):
+        raise InputError(f"regions {value!r}: name each of {', '.join(Frame)} at most once")
+    return tuple(f for f in Frame if f in chosen)
+
+
+def narrowed(feature, frame: Frame) -> float | None:
+    """The radius of the next region of ``feature`` in ``frame``: the frame's first where it has none
+    there, else half its own; None below the smallest (general-to-specific, 3.6)."""
+    first, smallest = RADII[frame]
+    if not (isinstance(feature, Within) and feature.region.frame is frame):
+        return first
+    radius = feature.region.radius / 2
+    return radius if radius >= smallest else None
+
+
 def pick(items: list, generator: torch.Generator):
     """One of ``items``, uniformly."""
     return items[int(torch.randint(len(items), (1,), generator=generator))]
@@ -82,9 +115,10 @@ class CandidateGenerator:
     """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
     from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
 
-    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES):
+    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES, regions=()):
         self.generator = generator
         self.primitives = primitive_set(primitives)
+        self.regions = frame_set(regions)
         self.sampled = 0
         # method 3's strongest occurrences (generate.strongest) by sample image and feature, for
         # one image set: a feature picked again on the same image is not measured again
@@ -118,6 +152,8 @@ class CandidateGenerator:
             self.sampled += len(made)
             return made
         pool = in_use(networks) + failed
+        if method is Method.REGION:
+            return self._regions(n, pool, env, samples) if self.regions and pool else []
         if method is Method.EXPANSION:  # geometric expansion at the strongest occurrence
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
@@ -136,4 +172,19 @@ class CandidateGenerator:
             a = pick(pool, generator)
             b = pick([f for f in pool if f != a], generator)
             made.append(kind(a, b))
+        return made
+
+    def _regions(self, n: int, pool: list, env: ImageSet, samples: list[int]) -> list:
+        """Method 2b: features of ``pool`` each bounded to a region of a frame drawn from ``regions``,
+        the disc :func:`narrowed` gives, around its strongest occurrence in its sample image."""
+        made = []
+        for k in range(n):
+            feature = pick(pool, self.generator)
+            frame = self.regions[int(torch.randint(len(self.regions), (1,), generator=self.generator))]
+            radius = narrowed(feature, frame)
+            sample = samples[k % len(samples)]
+            if radius is not None:
+                made.append(localize(feature, env.record(sample), 0, frame, radius, self._occurrences(env, sample)))
+        made = [f for f in made if f is not None]
+        self.sampled += len(made)
         return made

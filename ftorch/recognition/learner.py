@@ -223,7 +223,7 @@ class DistinctiveFeatureLearner:
         self._plans: list[Plan] = []  # the networks' structures as alg. 4.4 indexes them, the latest first
         self._ahead: Ahead | None = None  # first recognitions of the presentations to come (:meth:`present`)
         self.counting = Counting(self.settings.calibrate)
-        self.candidates = CandidateGenerator(self.generator, self.settings.primitives)
+        self.candidates = CandidateGenerator(self.generator, self.settings.primitives, self.settings.regions)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
         self.trainable = True  # False once loaded from a recognition-only state
@@ -262,6 +262,7 @@ class DistinctiveFeatureLearner:
         self.settings = self.settings.replace(**options)
         self.counting.calibrate = self.settings.calibrate
         self.candidates.primitives = self.settings.primitives
+        self.candidates.regions = self.settings.regions
         return self
 
     def _check_fitted(self) -> None:

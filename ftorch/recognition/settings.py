@@ -17,7 +17,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..settings import Settings, option
-from .candidates import THESIS_PRIMITIVES, Primitive, primitive_set
+from ..space.region import Frame
+from .candidates import THESIS_PRIMITIVES, Primitive, frame_set, primitive_set
 
 
 class Evidence(StrEnum):
@@ -55,6 +56,9 @@ class LearnerSettings(Settings):
     primitives: tuple[Primitive, ...] = option(
         THESIS_PRIMITIVES, f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
         "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
+    regions: tuple[Frame, ...] = option(
+        (), f"the frames in which a search bounds features to regions, general-to-specific: none, or a "
+        f"comma-separated choice of {', '.join(Frame)} (none: a feature looks anywhere, as the thesis's)", "LIST")
     contrast: int = option(1, "contrastive search: each generation method draws N x n_fgen candidates, those "
                            "that sample images from the misrecognized or sample image and the class's other examples "
                            "in turn, and tries the n_fgen most distinctive on the search's images first (1: alg. 4.10 "
@@ -84,6 +88,7 @@ class LearnerSettings(Settings):
         except ValueError:
             raise InputError(f"evidence {self.evidence!r}: expected one of {', '.join(Evidence)}") from None
         object.__setattr__(self, "primitives", primitive_set(self.primitives))
+        object.__setattr__(self, "regions", frame_set(self.regions))
 
     @classmethod
     def thesis(cls, **changes) -> "LearnerSettings":
@@ -92,9 +97,10 @@ class LearnerSettings(Settings):
         return cls(min_information=0.0, pseudocount=0.0, redundancy=1).replace(**changes)
 
     def to_dict(self) -> dict:
-        """JSON-ready: the primitives as one comma-separated string, the evidence as its name."""
+        """JSON-ready: the primitives and the regions' frames as comma-separated strings, the evidence as its name."""
         out = asdict(self)
         out["primitives"] = ",".join(self.primitives)
+        out["regions"] = ",".join(self.regions)
         out["evidence"] = str(self.evidence)
         return out
 

@@ -14,7 +14,7 @@ import torch
 from ftorch import FeatureSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
-from ftorch.recognition.candidates import primitive_set
+from ftorch.recognition.candidates import frame_set, primitive_set
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import Evidence, LearnerSettings
 from ftorch.recognition.stages import CYCLES_LIMIT, MAX_CYCLES, STAGES_LIMIT
@@ -79,6 +79,14 @@ def primitives(text: str) -> str:
     """--primitives: a comma-separated choice of method 2's primitives, in their canonical order."""
     try:
         return ",".join(primitive_set(text))
+    except InputError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def regions(text: str) -> str:
+    """--regions: none, or a comma-separated choice of the frames a search bounds features in."""
+    try:
+        return ",".join(frame_set(text)) or "none"
     except InputError as err:
         raise argparse.ArgumentTypeError(str(err)) from None
 
@@ -351,6 +359,9 @@ def _learner_options(p: argparse.ArgumentParser) -> None:
         elif f.name == "primitives":
             p.add_argument(flag, type=primitives, default=",".join(default), metavar=meta["metavar"],
                            help=f"{meta['help']} (default {','.join(default)})")
+        elif f.name == "regions":
+            p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=meta["metavar"],
+                           help=f"{meta['help']} (default {','.join(default) or 'none'})")
         elif f.name == "evidence":
             p.add_argument(flag, choices=[str(e) for e in Evidence], default=str(default),
                            help=f"{meta['help']} (default {default})")

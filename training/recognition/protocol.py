@@ -223,7 +223,7 @@ class Fold:
         stored = data.get("config")
         if isinstance(stored, dict):  # a run written before these options existed ran with their defaults
             defaults = RunConfig(self.config.task).to_dict()
-            stored = {**{k: defaults[k] for k in ("leak", "primitives", "calibrate", "dynamic")},
+            stored = {**{k: defaults[k] for k in ("leak", "primitives", "calibrate", "dynamic", "regions", "contrast")},
                       "images": self.config.images, **stored}  # nor did it record its images: not checked
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
