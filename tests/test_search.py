@@ -1,12 +1,18 @@
 """The search for a new feature (alg. 4.8, 5.1): contrastive draws and the training images it fails on."""
+import cv2
 import numpy as np
 import pytest
+import torch
 
+from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import Method
+from ftorch.recognition.candidates import RADII, CandidateGenerator, Method, frame_set, narrowed
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.stages import REPEATED, FailedSearch, Stage, repeated
+from ftorch.space.features import Texel, Within
+from ftorch.space.generate import random_texel
+from ftorch.space.region import Frame, Region
 from tests.test_learner import shape
 
 
@@ -88,3 +94,65 @@ def test_a_contrastive_search_tries_the_most_distinctive_of_n_times_the_candidat
         assert not all(best)  # alg. 4.10 tries its draw in order, not by power
     else:
         assert all(best)
+
+
+def test_frames_are_named_once_each_in_frame_order():
+    assert frame_set("object,image") == (Frame.IMAGE, Frame.OBJECT) and frame_set("none") == frame_set("") == ()
+    assert frame_set(["object"]) == (Frame.OBJECT,)
+    for bad in ("image,image", "pixels"):
+        with pytest.raises(InputError):
+            frame_set(bad)
+    with pytest.raises(InputError):
+        DistinctiveFeatureLearner(regions="everywhere")
+
+
+def test_regions_narrow_general_to_specific():
+    texel = Texel([1.0] + [0.0] * 14)
+    first, smallest = RADII[Frame.IMAGE]
+    assert narrowed(texel, Frame.IMAGE) == first
+    bounded = Within(texel, Region(Frame.IMAGE, 0.5, 0.5, first))
+    assert narrowed(bounded, Frame.IMAGE) == first / 2
+    assert narrowed(bounded, Frame.OBJECT) == RADII[Frame.OBJECT][0]  # another frame starts at its first disc
+    assert narrowed(Within(texel, Region(Frame.IMAGE, 0.5, 0.5, smallest * 1.5)), Frame.IMAGE) is None
+
+
+def test_method_2b_bounds_features_where_they_are_strongest_on_the_sample_image(shapes_env):
+    networks = {c: ClassNetwork(c) for c in range(3)}
+    pool = [f for f in (random_texel(shapes_env.record(i), 0, torch.Generator().manual_seed(i)) for i in range(6)) if f]
+    off = CandidateGenerator(torch.Generator().manual_seed(0))
+    assert off(Method.REGION, 10, networks, shapes_env, [4], 1, frozenset({2}), pool) == []
+    assert torch.equal(off.generator.get_state(), torch.Generator().manual_seed(0).get_state())  # nothing drawn
+    on = CandidateGenerator(torch.Generator().manual_seed(0), regions="image,object")
+    made = on(Method.REGION, 30, networks, shapes_env, [4, 7], 1, frozenset({2}), pool)
+    assert len(made) > 20 and on.sampled == len(made) and {f.region.frame for f in made} == set(Frame)
+    assert all(isinstance(f, Within) and f.feature in pool and f.region.radius == RADII[f.region.frame][0]
+               for f in made)
+    for k, f in enumerate(made[:8]):  # found on its own sample image as strongly as the unbounded feature
+        sample = [4, 7][k % 2] if len(made) == 30 else None
+        if sample is not None:
+            assert np.allclose(shapes_env.values([f], [sample]), shapes_env.values([f.feature], [sample]))
+    again = on(Method.REGION, 30, networks, shapes_env, [4], 1, frozenset({2}), made)
+    assert any(f.region.radius == RADII[f.region.frame][0] / 2 for f in again)  # narrowed where picked again
+
+
+def _spot(rng) -> np.ndarray:
+    """A bright square at the upper left of a dark image, its position jittered by a pixel."""
+    image = np.full((48, 48), 0.1, np.float32)
+    x, y = 14 + int(rng.integers(-1, 2)), 16 + int(rng.integers(-1, 2))
+    image[y - 4:y + 4, x - 4:x + 4] = 0.9
+    return cv2.GaussianBlur(image, (0, 0), 1.0)
+
+
+def test_a_learner_with_regions_tells_apart_classes_that_differ_only_in_where_things_are():
+    """The same square at the upper left, or turned by 180 degrees to the lower right: texture values
+    (rotation invariant, 7.2.1) matched anywhere are alike in both classes; bounded to a region in the
+    image frame they tell the classes apart."""
+    rng = np.random.default_rng(0)
+    images = [_spot(rng) if k % 2 == 0 else np.ascontiguousarray(np.rot90(_spot(rng), 2)) for k in range(24)]
+    labels = ["upper left" if k % 2 == 0 else "lower right" for k in range(24)]
+    train, test = (images[:12], labels[:12]), (images[12:], labels[12:])
+    options = {"seed": 0, "primitives": "texture", "contrast": 4}
+    anywhere = DistinctiveFeatureLearner(**options).fit(*train, stages=0, max_cycles=5)
+    bounded = DistinctiveFeatureLearner(regions="image", **options).fit(*train, stages=0, max_cycles=5)
+    assert bounded.score(*test) == 1.0 > anywhere.score(*test) + 0.2
+    assert any(isinstance(f, Within) for net in bounded.networks.values() for f in net.features)
