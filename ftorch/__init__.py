@@ -8,14 +8,14 @@ checkpoints are shared by all three.
 from .errors import InputError, NotFittedError
 from .grasp import GraspLearner
 from .images import as_image_batch, load_image
-from .recognition import DistinctiveFeatureLearner, ImageSet, LearnerSettings
+from .recognition import Answer, DistinctiveFeatureLearner, ImageSet, LearnerSettings
 from .space import BLOB, CORNER, EDGEL, FeatureSpace, ImageRecords, PartKind, SalientPoints, ScaleSpace, ScaleSpaceOutput, feature_values
 from .vml import resolve_vml
 
 resolve_vml()  # before any parallel float op can run: see ftorch.vml
 
 __all__ = [
-    "BLOB", "CORNER", "DistinctiveFeatureLearner", "EDGEL", "FeatureSpace", "GraspLearner", "ImageRecords", "ImageSet",
+    "Answer", "BLOB", "CORNER", "DistinctiveFeatureLearner", "EDGEL", "FeatureSpace", "GraspLearner", "ImageRecords", "ImageSet",
     "InputError", "LearnerSettings", "NotFittedError", "PartKind", "SalientPoints", "ScaleSpace", "ScaleSpaceOutput",
     "as_image_batch", "feature_values",
     "load_image",

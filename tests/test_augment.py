@@ -115,7 +115,7 @@ class _Recorder:
     def discard_unused(self, since):
         return []
 
-    def recognize_many(self, env, images, information=None):
+    def _recognize_many(self, env, images, information=None):  # learning's judging recognitions (no top label)
         from ftorch.recognition.inference import Recognition
 
         self.judged.append((list(images), information))

@@ -164,7 +164,7 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     assert a["folds"][0]["machine"] == a["machine"]  # where the fold trained: here, the runner's machine
     stage = a["folds"][0]["stages"][0]
     assert {"stage", "t_ksd", "cycles", "presentations", "train_learned", "test", "features", "seconds"} <= set(stage)
-    assert set(stage["test"]) == {"accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant"}
+    assert set(stage["test"]) == {"accuracy", "top1", "correct", "wrong", "ambiguous", "confused", "ignorant"}
     assert set(stage["features"]) == {"bn", "different", "queried", "sampled"}
     assert set(a["average"]) == {"stage0", "final"} and set(a["average"]["final"]) == {"test", "features"}
     markdown = (tmp_path / "a" / "report.md").read_text()
@@ -196,7 +196,7 @@ def check_events(folder, fold: dict, config: dict) -> None:
     events.Reload()
     tags = set(events.Tags()["scalars"])
     stages = fold["stages"]
-    for block, keys in (("test", ("accuracy", "correct", "wrong", "ambiguous", "confused", "ignorant")),
+    for block, keys in (("test", ("accuracy", "top1", "correct", "wrong", "ambiguous", "confused", "ignorant")),
                         ("features", ("bn", "different", "queried", "sampled"))):
         for key in keys:
             assert [e.value for e in events.Scalars(f"{block}/{key}")] == pytest.approx([s[block][key] for s in stages])
@@ -207,6 +207,7 @@ def check_events(folder, fold: dict, config: dict) -> None:
     assert [e.value for e in events.Scalars("train/mistakes_per_cycle")] == mistakes
     assert {"train/expert_per_cycle", "train/discarded_per_cycle", "train/features_per_cycle", "train/ksd_min"} <= tags
     assert events.Scalars("hparam/accuracy")[0].value == pytest.approx(stages[-1]["test"]["accuracy"])
+    assert events.Scalars("hparam/top1")[0].value == pytest.approx(stages[-1]["test"]["top1"])
     assert "_hparams_/session_start_info" in events.PluginTagToContent("hparams")
     assert "features/features" in events.Tags()["images"]
     [curves] = events.Images("figures/curves")

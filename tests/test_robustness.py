@@ -9,7 +9,7 @@ import torch
 
 from ftorch.errors import InputError
 from training.data.perturb import GREY, KINDS, mask, perturb, save_examples
-from training.recognition.peers import PixelNN, SiftMatcher, score
+from training.recognition.peers import PixelNN, SiftMatcher, score, score_ranked
 
 from .conftest import random_image
 
@@ -198,8 +198,17 @@ def test_score_matches_definitions_4_5_and_4_6_by_hand():
     block = score([frozenset(p) for p in predicted], [frozenset(t) for t in true], ["a", "b", "c"])
     # correct 1, ignorant |true|/n = 1/3, ambiguous 1/(1+1), wrong 0/(1+1), confused 0/(1+2), ignorant 1/2
     assert block["accuracy"] == pytest.approx((1 + 1 / 3 + 1 / 2 + 0 + 0 + 1 / 2) / 6)
-    assert block == pytest.approx({"accuracy": block["accuracy"], "correct": 1 / 6, "ignorant": 2 / 6,
+    # top-1: a one-class answer is its own top label (a, -, -, b, -, a); no label counts 0
+    assert block == pytest.approx({"accuracy": block["accuracy"], "top1": 2 / 6, "correct": 1 / 6, "ignorant": 2 / 6,
                                    "ambiguous": 1 / 6, "wrong": 1 / 6, "confused": 1 / 6})
+    # answers best class first (SIFT's ranked): the first is the top label, the set scores def. 4.6 as before
+    ranked = [["a"], [], ["b", "a"], ["b"], ["c", "b"], ["a"]]
+    by_rank = score_ranked(ranked, [frozenset(t) for t in true], ["a", "b", "c"])
+    assert by_rank == pytest.approx({**block, "top1": 2 / 6})  # {b, a}: top b, not a true class of image 3
+    assert score_ranked([["b", "a"]], [frozenset({"a"})], ["a", "b"])["top1"] == 0.0
+    assert score_ranked([["a", "b"]], [frozenset({"a"})], ["a", "b"])["top1"] == 1.0
+    with pytest.raises(InputError, match="top labels"):
+        score([frozenset({"a"})], [frozenset({"a"})], ["a"], top=[])
 
 
 def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbed_views(tmp_path, capsys):
@@ -216,6 +225,15 @@ def test_robustness_command_scores_the_runs_learners_and_peers_on_saved_perturbe
     assert ours["clean"]["accuracy"] == report["folds"][0]["stages"][-1]["test"]["accuracy"]  # the run's own test
     assert "flipped" not in ours["clean"] and 0 < ours["occlude"]["flipped"] < 1
     assert result["average"]["peers"]["sift"]["clean"]["accuracy"] == report["peers"]["average"]["sift"]["clean"]
+    # top-1 beside def. 4.6 everywhere: the run's own test, the peers' average, the table set against the peers
+    assert ours["clean"]["top1"] == report["folds"][0]["stages"][-1]["test"]["top1"]
+    assert result["average"]["peers"]["sift"]["clean"]["top1"] == report["peers"]["average"]["sift"]["clean_top1"]
+    assert report["peers"]["average"]["pixel_nn"]["clean_top1"] == result["average"]["peers"]["pixel_nn"]["clean"]["top1"]
+    clean = result["average"]["ours"]["clean"]
+    row = f"| ftorch | {clean['top1']:.2f} / {clean['accuracy']:.2f} ({clean['ignorant']:.2f}) | "  # clean: the first set
+    assert row in (tmp_path / "a" / "robustness.md").read_text() and "top-1 accuracy / accuracy (def. 4.6)" in (
+        tmp_path / "a" / "robustness.md").read_text()
+    assert "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |" in (out / "report.md").read_text()
     assert "pair" not in result["average"]["peers"]["pixel_nn"] and "pair" in result["average"]["peers"]["sift"]
     tested = sum(sum(row["as"].values()) + row["ambiguous"] + row["confused"] + row["ignorant"]
                  for row in report["folds"][0]["stages"][-1]["confusion"].values())

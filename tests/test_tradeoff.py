@@ -205,17 +205,18 @@ def test_sift_ratio_test_across_classes_equals_bfmatcher():
 
 
 def test_the_budget_table_takes_each_methods_best_point_within_the_budget():
-    def point(method, spent, mean):
-        return Point(method, f"{method} {spent}", spent, {"clean": mean}, mean, 1)
+    def point(method, spent, top1):  # def. 4.6's accuracy ordered the other way: the budgets follow top-1
+        return Point(method, f"{method} {spent}", spent, {"clean": 1 - top1}, 1 - top1, 1, {"clean": top1}, top1)
     points = [point("ftorch", 300, 0.6), point("ftorch", 900, 0.8), point("sift", 500, 0.7), point("sift", 3000, 0.95),
               point("pixel_nn", 200, 0.5), point("pixel_nn", 1000, 0.9)]
     rows = {r["budget"]: r for r in budget_rows(points)}
-    assert rows[256]["ftorch"] is None and rows[256]["pixel_nn"]["mean"] == 0.5 and rows[256]["ftorch_leads"] is None
-    assert rows[512]["ftorch"]["mean"] == 0.6 and rows[512]["sift"]["mean"] == 0.7 and rows[512]["ftorch_leads"] is False
-    assert rows[1024]["ftorch"]["mean"] == 0.8 and rows[1024]["pixel_nn"]["mean"] == 0.9 and not rows[1024]["ftorch_leads"]
+    assert rows[256]["ftorch"] is None and rows[256]["pixel_nn"]["mean_top1"] == 0.5 and rows[256]["ftorch_leads"] is None
+    assert rows[512]["ftorch"]["mean_top1"] == 0.6 and rows[512]["sift"]["mean_top1"] == 0.7 and rows[512]["ftorch_leads"] is False
+    assert rows[1024]["ftorch"]["mean_top1"] == 0.8 and rows[1024]["pixel_nn"]["mean_top1"] == 0.9 and not rows[1024]["ftorch_leads"]
     points.append(point("ftorch", 2000, 0.93))
     rows = {r["budget"]: r for r in budget_rows(points)}
     assert rows[2048]["ftorch_leads"] is True and rows[4096]["ftorch_leads"] is False  # sift .95 at 3000 bytes
+    assert rows[2048]["ftorch"]["mean"] == pytest.approx(0.07)  # def. 4.6's accuracy kept beside it
 
 
 def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path, capsys):
@@ -237,6 +238,7 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     assert ours["redundancy 1"]["bytes_per_class"] == pytest.approx(np.mean(spent))
     report = json.loads((runs / "k3" / "report.json").read_text())
     assert ours["redundancy 3"]["accuracy"]["clean"] == pytest.approx(report["folds"][0]["stages"][-1]["test"]["accuracy"])
+    assert ours["redundancy 3"]["top1"]["clean"] == pytest.approx(report["folds"][0]["stages"][-1]["test"]["top1"])
     settings = {(p["method"], p["setting"]) for p in result["points"]}
     assert {("sift", "1 keypoint"), ("sift", "all keypoints"), ("sift_across", "1 keypoint"), ("pixel_nn", "4x4 pixels"),
             ("pixel_nn", "16x16 pixels"),
@@ -248,11 +250,18 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     assert pixels["32x32 pixels"]["answered"] == 2 and pixels["16x16 pixels"]["answered"] == 3  # pairs are 32 x 64
     assert [r["budget"] for r in result["budgets"]][0] == 256
     text = (tmp_path / "a" / "tradeoff.md").read_text()
-    assert "| ftorch | redundancy 1 |" in text and "Best mean accuracy within each budget" in text
+    assert "| ftorch | redundancy 1 |" in text and "Best mean top-1 accuracy within each budget" in text
     assert (tmp_path / "a" / "front.png").stat().st_size > 0 and list((tmp_path / "a" / "tensorboard").glob("events.*"))
-    assert run.main([*args, "--out", str(tmp_path / "b")]) == 0
+    older = []  # the same runs as written before top-1 was reported: their reports hold no top1
+    for name in ("k1", "k3"):
+        shutil.copytree(runs / name, tmp_path / "older" / name)
+        path = tmp_path / "older" / name / "report.json"
+        path.write_text(path.read_text().replace('"top1"', '"_dropped"'))
+        older.append(str(tmp_path / "older" / name))
+    assert "top1" not in (tmp_path / "older" / "k3" / "report.json").read_text()
+    assert run.main([*args[:2], *older, *args[4:], "--out", str(tmp_path / "b")]) == 0
     again = json.loads((tmp_path / "b" / "tradeoff.json").read_text())
-    assert again["points"] == result["points"]  # same seed, same front
+    assert again["points"] == result["points"]  # same seed, same front, from the learners whatever the report holds
     capsys.readouterr()
     other = tmp_path / "other"
     shutil.copytree(runs / "k3", other)

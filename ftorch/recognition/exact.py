@@ -236,6 +236,25 @@ class ExactInference:
             out[group.positions[open_nodes]] = information(rest[None, :, None] * both)
         return float(posterior[1]), out
 
+    def log_odds(self, state: np.ndarray) -> float:
+        """The log posterior odds log P(C=1, e) - log P(C=0, e) (natural logs) under the evidence ``state``.
+
+        Summed, per class value, as log P(C) + sum over arc-free nodes of log P(e_i | C) + sum over
+        groups of log P(e_group | C), so it does not saturate where the posterior (a quotient of
+        products) is 1.0 or 0.0 in float: it tells such networks apart (the top label's ties, alg. 4.4
+        continued). A group's own likelihood is its sum over configurations, as :meth:`evaluate`
+        computes it. +-inf where one class value makes the evidence impossible, NaN where both do.
+        """
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logs = np.log(self.network.prior)
+            observed = state[self.singles] >= 0
+            if observed.any():
+                logs = logs + np.log(self.single_cpt[observed, :, state[self.singles[observed]]]).sum(0)
+            for group in self.groups:
+                like = group.evidence(state)[0] if group.table is not None else self._contract(group, state)
+                logs = logs + np.log(like)
+            return float(logs[1] - logs[0])
+
     def joint(self, evidence: dict[Hashable, int], query: Hashable | None = None) -> np.ndarray:
         """P(class | evidence) (2,), or P(class, query | evidence) (2, 2) for an unobserved feature.
 

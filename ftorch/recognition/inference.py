@@ -8,6 +8,11 @@ absent feature stays unobserved, as if occluded. It stops when no unqueried feat
 informative (I_max <= ``tolerance``). Evidence that a
 network deems impossible (probability 0 under its counted CPTs) is not entered there; that
 network keeps its belief. Ties in I_max go to the first network, then the first feature.
+
+The answer is a set (def. 4.5): every class whose posterior exceeds 0.5, so one class, several
+(ambiguous) or none (ignorant). :func:`top_class` adds one label per image beside it
+(:attr:`Recognition.top`, :class:`Answer`): the one class where exactly one is recognized, else alg.
+4.4 continued on the candidates' networks and the largest posterior (docs/decisions.md).
 """
 from __future__ import annotations
 
@@ -19,7 +24,10 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import InputError
 from .bayes import ClassNetwork
+
+TOP_TOLERANCE = 1e-12  # alg. 4.4 continued for the top label (top_class) stops at I_max <= this, whatever test_information
 
 
 class Outcome(StrEnum):
@@ -30,6 +38,22 @@ class Outcome(StrEnum):
     AMBIGUOUS = "ambiguous"  # all true classes and some false ones
     CONFUSED = "confused"  # some false classes, not all true ones, a different number
     IGNORANT = "ignorant"  # some true classes missing and no false one
+
+
+class Answer(StrEnum):
+    """What a learner answers per image: the thesis's set of recognized classes (alg. 4.4, def. 4.5:
+    one, several or none) or one label (:func:`top_class`)."""
+
+    OPEN_WORLD = "open-world"  # the classes whose posterior exceeds 0.5 (def. 4.5), scored by def. 4.6
+    TOP1 = "top-1"  # Recognition.top, scored by whether it is one of the true classes
+
+    @classmethod
+    def of(cls, value) -> "Answer":
+        """``value`` as an Answer; one InputError for any other value."""
+        try:
+            return cls(value)
+        except ValueError:
+            raise InputError(f"answer {value!r}: expected one of {', '.join(repr(str(a)) for a in cls)}") from None
 
 
 class Result(StrEnum):
@@ -70,6 +94,12 @@ def accuracy(recognized: Iterable[Hashable], true: Iterable[Hashable], n_classes
     return n_t / (len(true) + n_f)
 
 
+def top1_accuracy(top: Hashable | None, true: Iterable[Hashable]) -> float:
+    """Top-1 accuracy of one answer: 1 where its single label is one of the true classes, else 0
+    (None, no label, counts 0); its mean over images is the top-1 accuracy beside def. 4.6's."""
+    return float(top is not None and top in set(true))
+
+
 def residual_entropy(rec: "Recognition") -> dict:
     """Entropy in bits of every class node after recognition (alg. 5.1 step 2)."""
     out = {}
@@ -81,13 +111,15 @@ def residual_entropy(rec: "Recognition") -> dict:
 @dataclass
 class Recognition:
     """posteriors per class; recognized (> 0.5); features queried in order with their values;
-    beliefs after each step (beliefs[0] are the priors), which alg. 4.8 consults."""
+    beliefs after each step (beliefs[0] are the priors), which alg. 4.8 consults; ``top``: the one
+    label of :func:`top_class`, filled where an answer asks for it (None inside learning)."""
 
     posteriors: dict
     recognized: set
     queried: list = field(default_factory=list)
     values: dict = field(default_factory=dict)
     beliefs: list = field(default_factory=list)
+    top: Hashable | None = None
 
 
 class Plan:
@@ -118,6 +150,11 @@ class Plan:
         self.where = where  # each network's features as key indices, in its order
 
     # the same as arrays, for many images at once (:func:`recognize_block`), built on first use
+
+    @cached_property
+    def index(self) -> dict:
+        """Each feature's position in ``keys``."""
+        return {k: i for i, k in enumerate(self.keys)}
 
     @cached_property
     def key_slots(self) -> np.ndarray:
@@ -154,12 +191,14 @@ class Plan:
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
-              tolerance: float = 1e-12, positive_only: bool = False, plan: Plan | None = None) -> Recognition:
+              tolerance: float = 1e-12, positive_only: bool = False, plan: Plan | None = None,
+              top: bool = False) -> Recognition:
     """Alg. 4.4: ``measure(feature)`` returns the feature's value in the current image (eq. 3.14).
 
     Features are indexed once per network structure (:class:`Plan`: ``plan`` where the caller
     keeps one that still fits the networks, else a new one); each network keeps its evidence as a
     state array and only the networks that hold the queried feature recompute their informations.
+    ``top``: also fill :attr:`Recognition.top` (:func:`top_class`), which may measure more features.
     """
     plan = Plan.of(networks, plan)
     labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
@@ -194,11 +233,97 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
                 informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
         beliefs.append(dict(zip(labels, belief)))
     posteriors = beliefs[-1]
-    return Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
+    rec = Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
+    if top:
+        rec.top = top_class(networks, rec, measure, plan, positive_only)
+    return rec
+
+
+def _replayed(net: ClassNetwork, local: dict, rec: Recognition, positive_only: bool) -> np.ndarray:
+    """The evidence state alg. 4.4 left in ``net`` after ``rec``: its queried features entered in their
+    order as :func:`recognize` enters them (absence skipped with ``positive_only``, evidence the network
+    deems impossible not entered), so the same state, step for step."""
+    state = np.full(len(net.features), -1, dtype=np.int64)
+    for key in rec.queried:
+        if key not in local:
+            continue
+        present = rec.values[key] > net.threshold[key]
+        if positive_only and not present:
+            continue
+        trial = state.copy()
+        trial[local[key]] = int(present)
+        posterior = net.inference.evaluate(trial)[0]
+        if posterior == posterior:  # not NaN: the evidence is possible
+            state = trial
+    return state
+
+
+def top_class(networks: dict[Hashable, ClassNetwork], rec: Recognition, measure: Callable[[Hashable], float],
+              plan: Plan | None = None, positive_only: bool = False) -> Hashable | None:
+    """The one label of an image beside alg. 4.4's set (def. 4.5), given its recognition ``rec`` and
+    ``measure`` (the feature values, as :func:`recognize` takes them); None only without networks.
+
+    Where exactly one class is recognized, that class. Otherwise the candidates are the recognized
+    classes (ambiguous) or every class (ignorant), and alg. 4.4 goes on with their networks alone,
+    from the evidence ``rec`` entered: it queries the candidates' features not queried yet, by largest
+    mutual information with any candidate's class node (ties: first network, first feature), while
+    one exceeds :data:`TOP_TOLERANCE`, so past a stopping threshold (``test_information``) the first
+    recognition stopped at. The answer is the candidate of largest posterior; posteriors equal in
+    float (both saturated at 1.0 or 0.0) go to the larger log posterior odds
+    (:meth:`~ftorch.recognition.exact.ExactInference.log_odds`, which does not saturate), then to the
+    first network. The other networks are neither asked nor changed.
+    """
+    if len(rec.recognized) == 1:
+        return next(iter(rec.recognized))
+    plan = Plan.of(networks, plan)
+    labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
+    start, slot_key, slots = plan.start, plan.slot_key, plan.slots
+    candidates = [n for n, c in enumerate(labels) if c in rec.recognized] or list(range(len(labels)))
+    if len(candidates) <= 1:
+        return labels[candidates[0]] if candidates else None
+    chosen = np.zeros(len(nets), dtype=bool)
+    chosen[candidates] = True
+    asked = np.zeros(len(slot_key), dtype=bool)
+    for key in rec.queried:
+        asked[slots[plan.index[key]]] = True
+    informative = np.zeros(len(slot_key))  # the other networks' slots stay 0: never queried for them
+    states, belief = {}, {}
+    for n in candidates:
+        states[n] = _replayed(nets[n], local[n], rec, positive_only)
+        belief[n], info = nets[n].inference.evaluate(states[n])
+        informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
+    while len(informative):
+        slot = int(informative.argmax())
+        if not informative[slot] > TOP_TOLERANCE:
+            break
+        best = int(slot_key[slot])
+        key = keys[best]
+        asked[slots[best]] = True
+        informative[slots[best]] = 0.0
+        value = float(measure(key))
+        for n in holders[best]:
+            if not chosen[n]:
+                continue
+            present = value > nets[n].threshold[key]
+            if positive_only and not present:
+                continue
+            trial = states[n].copy()
+            trial[local[n][key]] = int(present)
+            posterior, info = nets[n].inference.evaluate(trial)
+            if posterior == posterior:  # not NaN: the evidence is possible
+                states[n], belief[n] = trial, posterior
+                informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
+    largest = max(belief[n] for n in candidates)
+    tied = [n for n in candidates if belief[n] == largest]
+    if len(tied) > 1:  # saturated in float: the log odds still tell them apart; then network order
+        odds = {n: nets[n].inference.log_odds(states[n]) for n in tied}
+        most = max((o for o in odds.values() if o == o), default=None)
+        tied = [n for n in tied if odds[n] == most] or tied
+    return labels[tied[0]]
 
 
 def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, tolerance: float = 1e-12,
-                    positive_only: bool = False, plan: Plan | None = None) -> list[Recognition]:
+                    positive_only: bool = False, plan: Plan | None = None, top: bool = False) -> list[Recognition]:
     """Alg. 4.4 for B images at once: ``values`` (K, B) are the values of the plan's features
     (``Plan.keys``, every network's features once, in network order) in each image.
 
@@ -207,7 +332,10 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
     network's :meth:`~ftorch.recognition.exact.ExactInference.evaluate` for the states its images
     reach. Every number is computed by the same operations on the same operands as there (the
     block only gathers and scatters them), so the queries, values, beliefs and answers are those
-    of :func:`recognize` image by image, ties included (tested).
+    of :func:`recognize` image by image, ties included (tested). ``top``: also fill
+    :attr:`Recognition.top` by :func:`top_class`, from the image's column of ``values``; only the
+    images whose answer is not one class go on (image by image: a few of a block, each its own
+    candidates), so the tops are those of :func:`recognize` too.
     """
     plan = Plan.of(networks, plan)
     labels, nets, keys, start, slot_key = plan.labels, plan.nets, plan.keys, plan.start, plan.slot_key
@@ -273,4 +401,8 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
     for b in range(count):
         posteriors = beliefs[b][-1]
         out.append(Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried[b], measured[b], beliefs[b]))
+    if top:
+        index = plan.index
+        for b, rec in enumerate(out):
+            rec.top = top_class(networks, rec, lambda key, b=b: float(values[index[key], b]), plan, positive_only)
     return out

@@ -75,7 +75,19 @@ from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
-from .inference import Outcome, Plan, Recognition, Result, accuracy, outcome, recognize, recognize_block, residual_entropy
+from .inference import (
+    Answer,
+    Outcome,
+    Plan,
+    Recognition,
+    Result,
+    accuracy,
+    outcome,
+    recognize,
+    recognize_block,
+    residual_entropy,
+    top1_accuracy,
+)
 from .instances import InstanceList, are_stored_values
 from .settings import Evidence, LearnerSettings, bits, whole
 from .stages import MAX_CYCLES, Schedule, Stage
@@ -310,10 +322,16 @@ class DistinctiveFeatureLearner:
         self.present(added, range(start, len(added)), t_ksd)
         return self
 
-    def predict(self, images) -> list[frozenset]:
-        """The classes recognized in each image (alg. 4.4, posterior > 0.5): a set per image, empty
-        where no class is recognized (an ignorant result, def. 4.5)."""
-        return [frozenset(r.recognized) for r in self._answers(images)]
+    def predict(self, images, answer: Answer | str = Answer.OPEN_WORLD) -> list:
+        """Each image's answer. ``Answer.OPEN_WORLD`` (the thesis's): the classes recognized (alg. 4.4,
+        posterior > 0.5), a set per image, empty where no class is recognized (an ignorant result,
+        def. 4.5). ``Answer.TOP1``: one class label per image (:attr:`Recognition.top`, alg. 4.4
+        continued on the candidates where the set is not one class)."""
+        answer = Answer.of(answer)
+        answers = self._answers(images)
+        if answer is Answer.TOP1:
+            return [r.top for r in answers]
+        return [frozenset(r.recognized) for r in answers]
 
     def predict_proba(self, images) -> np.ndarray:
         """Each image's posterior per class (images x :attr:`classes_`), after alg. 4.4. The classes
@@ -321,13 +339,17 @@ class DistinctiveFeatureLearner:
         labels = self.classes_
         return np.array([[r.posteriors[c] for c in labels] for r in self._answers(images)], dtype=np.float64)
 
-    def score(self, images, labels=None) -> float:
-        """Mean accuracy (def. 4.6) over labelled images, against every class learned."""
+    def score(self, images, labels=None, answer: Answer | str = Answer.OPEN_WORLD) -> float:
+        """Mean accuracy over labelled images: ``Answer.OPEN_WORLD``, def. 4.6 against every class
+        learned; ``Answer.TOP1``, the share of images whose top label is one of their true classes."""
+        answer = Answer.of(answer)
         self._check_fitted()
         env = self._image_set(images, labels)
         if not env.labeled:
             raise InputError("score needs labels: the true classes of each image")
         answers = self._answers(env)
+        if answer is Answer.TOP1:
+            return float(np.mean([top1_accuracy(r.top, t) for r, t in zip(answers, env.labels)]))
         n = len(set(self.networks) | set(env.classes()))
         return float(np.mean([accuracy(r.recognized, t, n) for r, t in zip(answers, env.labels)]))
 
@@ -338,32 +360,35 @@ class DistinctiveFeatureLearner:
 
     # -- recognition (alg. 4.4) --------------------------------------------------------------
     def recognize(self, env: ImageSet, image: int) -> Recognition:
-        """Recognize one image of ``env`` (alg. 4.4, stopping at ``test_information``); nothing is
-        learned or recorded."""
+        """Recognize one image of ``env`` (alg. 4.4, stopping at ``test_information``), its top label
+        filled (:func:`~ftorch.recognition.inference.top_class`); nothing is learned or recorded."""
         return self.recognize_many(env, [image])[0]
 
     def recognize_many(self, env: ImageSet, images, information: float | None = None) -> list[Recognition]:
         """Recognize several images: every feature of every network is measured on all of them in one
         batch. ``information``: the stopping threshold in bits (default ``test_information``; the
-        learning recognitions' ``min_information`` judges a training image as learning does)."""
+        learning recognitions' ``min_information`` judges a training image as learning does). These are
+        answers: each one's top label is filled (:func:`~ftorch.recognition.inference.top_class`, from
+        the values already measured); learning's own recognitions leave it None."""
         self._check_fitted()
         threshold = self.settings.test_information if information is None else bits("information", information)
-        return self._recognize_many(env, images, threshold)
+        return self._recognize_many(env, images, threshold, top=True)
 
-    def _recognize_many(self, env: ImageSet, images, threshold: float) -> list[Recognition]:
+    def _recognize_many(self, env: ImageSet, images, threshold: float, top: bool = False) -> list[Recognition]:
         images = [env.index(i) for i in images]
-        return self._recognize_table(_values(env, in_use(self.networks), images), threshold)
+        return self._recognize_table(_values(env, in_use(self.networks), images), threshold, top)
 
-    def _recognize_table(self, table: np.ndarray, threshold: float) -> list[Recognition]:
+    def _recognize_table(self, table: np.ndarray, threshold: float, top: bool = False) -> list[Recognition]:
         """Alg. 4.4 on a block of images given their values ``table`` (features in :func:`in_use` order, which
         is the plan's, x images), stopping at ``threshold`` bits: as a block from ``BLOCK_MIN`` images on,
-        else image by image (the same recognitions either way; :data:`BLOCK_MIN` says which is faster)."""
+        else image by image (the same recognitions either way; :data:`BLOCK_MIN` says which is faster);
+        ``top``: with their top labels."""
         plan = Plan.of(self.networks, *self._plans)
         self._plans = [plan, *(p for p in self._plans if p is not plan)][:2]
         tolerance, positive_only = max(threshold, 1e-12), self.settings.evidence is Evidence.POSITIVE
         if table.shape[1] >= BLOCK_MIN:
-            return recognize_block(self.networks, table, tolerance, positive_only, plan)
-        return [recognize(self.networks, dict(zip(plan.keys, column)).__getitem__, tolerance, positive_only, plan)
+            return recognize_block(self.networks, table, tolerance, positive_only, plan, top)
+        return [recognize(self.networks, dict(zip(plan.keys, column)).__getitem__, tolerance, positive_only, plan, top)
                 for column in table.T.tolist()]
 
     # -- estimation (alg. 4.7 step 3) --------------------------------------------------------

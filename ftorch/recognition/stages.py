@@ -275,7 +275,7 @@ class Schedule:
                 ksd_min = min(ksd_min, p.ksd)
         discarded = learner.discard_unused(since=begin + 1)
         if versions > 1:
-            judged = learner.recognize_many(env, shown, learner.settings.min_information)
+            judged = learner._recognize_many(env, shown, learner.settings.min_information)  # learning's: no top label
             mistakes = sum(outcome(r.recognized, env.labels[i]) is not Outcome.CORRECT for r, i in zip(judged, shown))
         else:
             mistakes = sum(r.mistake for r in results)

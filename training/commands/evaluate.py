@@ -78,21 +78,24 @@ def _evaluate(args, device, folder: RunFolder) -> int:
         print(f"note: classes {', '.join(unknown)} of {args.data} are unknown to the learner", file=sys.stderr)
     classes = sorted(set(networks) | set(task.labels), key=str)
     env = image_set(task, list(range(len(task.images))), FeatureSpace().to(device), not args.quiet)
-    recognitions = [replace(r, recognized={str(c) for c in r.recognized}) for r in learner.recognize_many(env, range(len(env)))]
+    recognitions = [replace(r, recognized={str(c) for c in r.recognized}, top=None if r.top is None else str(r.top))
+                    for r in learner.recognize_many(env, range(len(env)))]
     result = {"checkpoint": str(args.learner), "data": str(args.data), "classes": classes, "size": args.size,
               "test": test_block(recognitions, env.labels, classes), "features": feature_block(learner, recognitions),
               "confusion": confusion(recognitions, env.labels, classes, networks),
-              "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized))}
+              "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized)), "top": r.top}
                          for name, t, r in zip(env.names, env.labels, recognitions)]}
     folder.ledger.files(out / "evaluate.json", out / "evaluate.md")
     write_json(out / "evaluate.json", result)
     lines = [f"# Evaluation of {args.learner} on {args.data}", "",
-             f"accuracy {result['test']['accuracy']:.2f}; "
-             + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k != "accuracy"),
+             f"accuracy {result['test']['accuracy']:.2f}; top-1 accuracy {result['test']['top1']:.2f} (each image's one "
+             "label, its \"top\" in evaluate.json); "
+             + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k not in ("accuracy", "top1")),
              "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result["confusion"], classes), "",
              "## Ambiguous recognitions (table 4.4 form)", "", *ambiguity_table(result["confusion"], classes), ""]
     write_text(out / "evaluate.md", "\n".join(lines))
-    print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, correct {result['test']['correct']:.2f}; "
+    print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, top-1 {result['test']['top1']:.2f}, "
+          f"correct {result['test']['correct']:.2f}; "
           f"report: {out / 'evaluate.md'}")
     return 0
 

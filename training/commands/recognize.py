@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import sys
 import time
 from dataclasses import fields
 from pathlib import Path
@@ -35,6 +36,7 @@ from training.recognition.report import (
     growth_over_seeds,
     seed_study,
     shown,
+    top1_note,
     write_json,
     write_markdown,
 )
@@ -151,6 +153,7 @@ def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np
     final = entry["stages"][-1]
     hparams = {k: v for k, v in config.to_dict().items() if isinstance(v, (int, float, str, bool))}
     metrics = {"hparam/accuracy": final["test"]["accuracy"], "hparam/correct": final["test"]["correct"],
+               **({"hparam/top1": final["test"]["top1"]} if "top1" in final["test"] else {}),
                "hparam/features": final["features"]["bn"], "hparam/queried": final["features"]["queried"],
                "hparam/stages": len(entry["stages"])}
     writer.add_hparams(hparams, metrics, run_name=".", global_step=final["step"])
@@ -297,7 +300,8 @@ def _recognize(args, incremental: bool, device: torch.device, task: Task, folder
             taught = f", {stage['classes']} classes" if incremental else ""
             print(f"fold {k} stage {stage['stage']}{taught} "
                   f"(t_KSD {stage['t_ksd']:.3f}{', met' if stage['target_met'] else ''}): "
-                  f"accuracy {stage['test']['accuracy']:.2f}, correct {stage['test']['correct']:.2f}, "
+                  f"accuracy {stage['test']['accuracy']:.2f}, top-1 {shown(stage['test'].get('top1'))}, "
+                  f"correct {stage['test']['correct']:.2f}, "
                   f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
     seeds = None
     if args.seeds > 1:
@@ -321,12 +325,17 @@ def _recognize(args, incremental: bool, device: torch.device, task: Task, folder
         figures.append(name)
     write_markdown(out / "report.md", report, figures)
     avg = report["average"]["final"]
-    print(f"average: accuracy {avg['test']['accuracy']:.2f}, correct {avg['test']['correct']:.2f}, "
+    note = top1_note([r["entry"] for r in results], names)  # every seed's folds: a figure of any may lack it
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"average: accuracy {avg['test']['accuracy']:.2f}, top-1 {shown(avg['test'].get('top1'))}, "
+          f"correct {avg['test']['correct']:.2f}, "
           f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
     if seeds:
         print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
               f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, "
-              f"one-tailed paired t-test p = {shown(seeds['p'], '.2g')}")
+              f"one-tailed paired t-test p = {shown(seeds['p'], '.2g')}; top-1 novice {shown(seeds['novice_top1']['mean'])}, "
+              f"expert {shown(seeds['expert_top1']['mean'])}")
         if seeds.get("growth", {}).get("mean") is not None:
             g = seeds["growth"]
             print(f"{args.seeds} seeds, fold 1: features sampled ~ classes^b, b = {g['mean']:.2f} "

@@ -23,7 +23,7 @@ from training.recognition.protocol import same_images
 from training.recognition.report import (
     write_json,
 )
-from training.recognition.robustness import SETS, feature_tables, fold_robustness, perturbations
+from training.recognition.robustness import SETS, TABLE_CELLS, feature_tables, fold_robustness, perturbations
 from training.recognition.robustness import average as average_robustness
 from training.recognition.robustness import table as robustness_table
 
@@ -95,10 +95,10 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
         save_rgb(out / "features.png", figure_rgb(feature_types_figure(types, f"{run}: which features survive, "
                                                                               f"perturbation seed {args.seed}")))
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
-             f"{described(result['machine'])}, {result['seconds']:.1f} s. Accuracy (def. 4.6) and, in brackets, the "
-             "ignorant share (def. 4.5), "
-             "mean over folds; \"flipped\": the share of (network node, test view) whose state differs from "
-             "the clean view's.", "", *robustness_table(result), "",
+             f"{described(result['machine'])}, {result['seconds']:.1f} s. Each method's cells: {TABLE_CELLS}, "
+             "mean over folds. Ours is set against the peers on top-1 accuracy (one label per image, as each peer "
+             "answers); def. 4.6's accuracy is the thesis's figure for its open-world answer. \"flipped\": the share of "
+             "(network node, test view) whose state differs from the clean view's.", "", *robustness_table(result), "",
              *[f"![fold {k}](fold{k}/overview.png)" for k in folds], "", *feature_tables(result),
              *(["![which features survive](features.png)", ""] if types else [])]
     write_text(out / "robustness.md", "\n".join(lines))

@@ -10,7 +10,9 @@ Both count what they store at its stored precision (:meth:`storage_per_class`): 
 SIFT descriptor's entry are one byte each (OpenCV's SIFT entries are whole numbers below 256).
 
 Both answer with sets of classes, scored by :func:`score` exactly as the learner's recognitions
-(def. 4.5, 4.6).
+(def. 4.5, 4.6), and with one label each, their best class (pixel 1-NN: its one class; SIFT: the
+first of :meth:`SiftMatcher.ranked`), scored as the learner's top label (top-1 accuracy): the figure
+on which ours is set against theirs.
 """
 from __future__ import annotations
 
@@ -30,12 +32,22 @@ DESCRIPTOR_BYTES = 128  # 128 entries, each a whole number below 256 (OpenCV sat
 CHUNK = 1 << 22  # squared distances computed at once in SiftMatcher.good_matches
 
 
-def score(predicted: list[frozenset], true: list[frozenset], classes: list) -> dict:
-    """Accuracy (def. 4.6) and outcome proportions (def. 4.5), computed by ``protocol.test_block``
-    so that baselines and learner are scored by the same code."""
+def score(predicted: list[frozenset], true: list[frozenset], classes: list, top: list | None = None) -> dict:
+    """Accuracy (def. 4.6), top-1 accuracy and outcome proportions (def. 4.5), computed by
+    ``protocol.test_block`` so that baselines and learner are scored by the same code. ``top``: each
+    image's one label (None: none); default, the class of a one-class answer, else None."""
     if len(predicted) != len(true):
         raise InputError(f"{len(predicted)} predictions but {len(true)} label sets")
-    return test_block([Recognition({}, set(p)) for p in predicted], [frozenset(t) for t in true], classes)
+    if top is None:
+        top = [next(iter(p)) if len(p) == 1 else None for p in predicted]
+    elif len(top) != len(predicted):
+        raise InputError(f"{len(predicted)} predictions but {len(top)} top labels")
+    return test_block([Recognition({}, set(p), top=t) for p, t in zip(predicted, top)], [frozenset(t) for t in true], classes)
+
+
+def score_ranked(answers: list[list], true: list[frozenset], classes: list) -> dict:
+    """:func:`score` of answers given best class first (:meth:`SiftMatcher.ranked`): the set, and the first as top label."""
+    return score([frozenset(a) for a in answers], true, classes, [a[0] if a else None for a in answers])
 
 
 def _view_classes(labels: list[frozenset]) -> list:
@@ -208,6 +220,11 @@ class SiftMatcher:
                 queries: list[np.ndarray] | None = None) -> list[frozenset]:
         """The answer for each image; ``queries``: their descriptors (``sift_descriptors``), where
         computed before (e.g. once for many budgets)."""
+        return [frozenset(answer) for answer in self.ranked(images, n_classes, queries)]
+
+    def ranked(self, images: list[torch.Tensor], n_classes: int | None = None,
+               queries: list[np.ndarray] | None = None) -> list[list]:
+        """:meth:`predict`'s answer for each image as a list, best class first (its one label)."""
         if n_classes is None:
             n_classes = 2 if self.two_classes else 1
         out = []
@@ -219,7 +236,7 @@ class SiftMatcher:
                 scores = torch.zeros(len(self.classes), dtype=torch.int64).scatter_reduce(
                     0, self._class_of_view, self.good_matches(image, query), "amax").tolist()
             best = sorted(range(len(self.classes)), key=lambda c: -scores[c])[:n_classes]
-            out.append(frozenset(self.classes[c] for c in best if scores[c] > 0))
+            out.append([self.classes[c] for c in best if scores[c] > 0])
         return out
 
     def storage_per_class(self) -> float:

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ftorch.checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint
 from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
-from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome
+from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome, top1_accuracy
 from ftorch.recognition.learner import GENERATOR_STATE, TRAINING_STATE, DistinctiveFeatureLearner
 from ftorch.recognition.learner import KIND as LEARNER_KIND
 from ftorch.recognition.settings import LearnerSettings
@@ -38,10 +38,13 @@ FOLD_KIND = "fold"
 
 
 def test_block(recognitions: list[Recognition], labels: list[frozenset], classes: list) -> dict:
-    """Accuracy (def. 4.6) and the proportions of the five outcomes (def. 4.5) over a test set."""
+    """Accuracy (def. 4.6), top-1 accuracy beside it (the share of images whose top label,
+    :attr:`Recognition.top`, is one of their true classes) and the proportions of the five outcomes
+    (def. 4.5) over a test set."""
     outcomes = Counter(outcome(r.recognized, t) for r, t in zip(recognitions, labels))
     n = max(len(recognitions), 1)
-    block = {"accuracy": float(np.mean([accuracy(r.recognized, t, len(classes)) for r, t in zip(recognitions, labels)]))}
+    block = {"accuracy": float(np.mean([accuracy(r.recognized, t, len(classes)) for r, t in zip(recognitions, labels)])),
+             "top1": float(np.mean([top1_accuracy(r.top, t) for r, t in zip(recognitions, labels)]))}
     block.update({str(k): outcomes[k] / n for k in Outcome})
     return block
 

@@ -41,10 +41,33 @@ def thesis_key(report: dict) -> str:
 
 
 def average(folds: list[dict], which: int) -> dict:
-    """Mean over folds of the ``test`` and ``features`` blocks of stage ``which`` (0 = first, -1 = last)."""
+    """Mean over folds of the ``test`` and ``features`` blocks of stage ``which`` (0 = first, -1 = last);
+    NaN (null, n/a) for a figure some fold's stage lacks: ``top1`` of a stage tested before top-1 was
+    reported, in a fold resumed from such a checkpoint (:func:`without_top1`)."""
     stages = [f["stages"][which] for f in folds]
-    return {block: {k: float(np.mean([s[block][k] for s in stages])) for k in stages[0][block]}
-            for block in ("test", "features")}
+    out = {}
+    for block in ("test", "features"):
+        keys = dict.fromkeys(k for s in stages for k in s[block])
+        out[block] = {k: float(np.mean([s[block][k] for s in stages])) if all(k in s[block] for s in stages) else math.nan
+                      for k in keys}
+    return out
+
+
+def without_top1(folds: list[dict], names: list[str] | None = None) -> list[str]:
+    """"NAME stage S" for every stage of ``folds`` (named ``names``, default "fold K") whose test block has
+    no top-1 accuracy: one tested before ftorch reported it, kept by a fold resumed from a checkpoint
+    of that version."""
+    names = [f"fold {f['fold']}" for f in folds] if names is None else names
+    return [f"{name} stage {s['stage']}" for f, name in zip(folds, names) for s in f["stages"] if "top1" not in s["test"]]
+
+
+def top1_note(folds: list[dict], names: list[str] | None = None) -> str | None:
+    """One line naming the stages without top-1 accuracy (:func:`without_top1`), or None where every stage has it."""
+    missing = without_top1(folds, names)
+    if not missing:
+        return None
+    return (f"top-1 accuracy is not available (n/a) for {', '.join(missing)}: tested before ftorch reported it "
+            "(resumed from an older checkpoint); train afresh for it")
 
 
 def build_report(config: dict, device: str, machine: dict, seconds: float, folds: list[dict],
@@ -112,11 +135,14 @@ def seed_study(runs: list[dict], seeds: list[int]) -> dict:
     novice = np.array([s["test"]["accuracy"] for s in novices])
     expert = np.array([r["stages"][-1]["test"]["accuracy"] for r in runs])
     test = stats.ttest_rel(expert, novice, alternative="greater")
+    top1 = {"novice_top1": [s["test"].get("top1", math.nan) for s in novices],  # NaN: a stage without it (without_top1)
+            "expert_top1": [r["stages"][-1]["test"].get("top1", math.nan) for r in runs]}
 
     def spread(values) -> dict:
         return {"values": [float(v) for v in values], "mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1))}
 
     return {"seeds": seeds, "fold": runs[0]["fold"], "novice": spread(novice), "expert": spread(expert),
+            **{k: spread(v) for k, v in top1.items()},
             "novice_queried": spread([s["features"]["queried"] for s in novices]),
             "expert_queried": spread([r["stages"][-1]["features"]["queried"] for r in runs]),
             "t": float(test.statistic), "p": float(test.pvalue)}
@@ -151,8 +177,15 @@ def shown(value, spec: str = ".2f") -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
-def _p(value: float) -> str:
-    """Proportions as in the thesis: .50, blank for zero."""
+def _spread(spread: dict) -> str:
+    """A seed study's mean +- sd (3 decimals), n/a where not available."""
+    return f"{shown(spread['mean'], '.3f')} +- {shown(spread['sd'], '.3f')}"
+
+
+def _p(value: float | None) -> str:
+    """Proportions as in the thesis: .50, blank for zero; n/a where not available (None or NaN)."""
+    if value is None or math.isnan(value):
+        return "n/a"
     return "" if value == 0 else f"{value:.2f}".lstrip("0") if value < 1 else f"{value:.2f}"
 
 
@@ -163,7 +196,7 @@ def cell(text) -> str:
 
 
 def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
-    cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), *(_p(test[k]) for k in Outcome),
+    cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), _p(test.get("top1")), *(_p(test[k]) for k in Outcome),
              f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
              f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}",
              f"{features['sampled'] / presentations:.1f}" if presentations else ""]
@@ -171,11 +204,12 @@ def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cy
 
 
 def summary_table(report: dict, which: int = 0) -> list[str]:
-    """Table 4.2 (``which`` = 0) or 5.1 (-1): accuracy, outcome proportions, feature counts, cycles
-    and presentations so far, per fold and averaged, with the thesis's average row; last, features
-    sampled per presentation (alg. 5.1's search, the thesis's 5.0 on COIL)."""
-    head = ["| task | cls. | fold | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. | sp'd/img. |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    """Table 4.2 (``which`` = 0) or 5.1 (-1): accuracy, top-1 accuracy beside it (n/a in the thesis's
+    row: it reports none), outcome proportions, feature counts, cycles and presentations so far, per
+    fold and averaged, with the thesis's average row; last, features sampled per presentation (alg.
+    5.1's search, the thesis's 5.0 on COIL)."""
+    head = ["| task | cls. | fold | acc. | top-1 | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. | "
+            "sp'd/img. |", "|---" * 17 + "|"]
     rows, n = [], len(report["classes"])
     task = f"{report['task']}-inc" if report["config"].get("incremental") else report["task"]
     cycles = []  # all cycles up to and including the stage, as table 5.1 counts them
@@ -196,13 +230,13 @@ def summary_table(report: dict, which: int = 0) -> list[str]:
 def stage_table(fold: dict) -> list[str]:
     """Every stage of a fold (the data of figures 5.1 and 5.11): t_KSD (bold where met), KSD_min,
     test results and feature counts."""
-    head = ["| stage | classes | t_KSD | KSD_min | cycles | acc. | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd |",
-            "|---" * 15 + "|"]
+    head = ["| stage | classes | t_KSD | KSD_min | cycles | acc. | top-1 | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | "
+            "sp'd |", "|---" * 16 + "|"]
     rows = []
     for s in fold["stages"]:
         t = f"{s['t_ksd']:.3f}"
         cells = [str(s["stage"]), str(s["classes"]), f"**{t}**" if s["target_met"] else t, f"{s['ksd_min']:.3f}",
-                 str(s["cycles"]), _p(s["test"]["accuracy"]), *(_p(s["test"][k]) for k in Outcome),
+                 str(s["cycles"]), _p(s["test"]["accuracy"]), _p(s["test"].get("top1")), *(_p(s["test"][k]) for k in Outcome),
                  str(s["features"]["bn"]), str(s["features"]["different"]), f"{s['features']['queried']:.1f}",
                  str(s["features"]["sampled"])]
         rows.append("| " + " | ".join(cells) + " |")
@@ -281,7 +315,9 @@ def _confusion_sections(report: dict, which: int, table: str) -> list[str]:
     return lines
 
 
-COLUMNS = ("Columns, as in the thesis's tables: cls. classes; acc. accuracy (def. 4.6); cor., wrg., amb., cnf., ign. "
+COLUMNS = ("Columns, as in the thesis's tables: cls. classes; acc. accuracy (def. 4.6); top-1 (not in the thesis) the "
+           "share of test views whose one label is a true class: the recognized class where one is, else alg. 4.4 "
+           "continued on the recognized classes (or all, where none is) and the largest posterior; cor., wrg., amb., cnf., ign. "
            "the shares of test views recognized correct, wrong, ambiguous, confused, ignorant (def. 4.5; blank: 0); "
            "BN features in the class networks; dif. different features among them; qu'd features queried per "
            "recognition; sp'd features sampled; cyc. training cycles; imgs. training presentations; sp'd/img. "
@@ -312,7 +348,8 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
              f"{len(classes)} classes, seed {report['seed']}, device {report['device']} "
              f"({described(report['machine'])}), {report['seconds']:.1f} s.", "",
              *([f"Folds trained on other machines: {'; '.join(elsewhere)}.", ""] if elsewhere else []),
-             *([f"Peak GPU memory per task (torch's allocator, MiB): {memory}.", ""] if memory else []), COLUMNS, ""]
+             *([f"Peak GPU memory per task (torch's allocator, MiB): {memory}.", ""] if memory else []), COLUMNS, "",
+             *([f"Note: {top1_note(report['folds'])}.", ""] if without_top1(report["folds"]) else [])]
     expert = any(len(f["stages"]) > 1 for f in report["folds"])
     if not incremental:
         lines += ["## Novices: after stage 0 (table 4.2 form)", "", *summary_table(report, 0), "",
@@ -332,14 +369,16 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                       "available (n/a) with fewer than two class counts, the interval with fewer than three points); "
                       "per fold: " + ", ".join(f"fold {k} {shown(v['exponent'])}" for k, v in g["folds"].items()), ""]
     if "peers" in report:
-        mean, final = report["peers"]["average"], report["average"]["final"]["test"]["accuracy"]
-        lines += ["## Peers on the same splits (clean test views, mean over folds)", "",
-                  "| method | accuracy | stores per class |", "|---|---|---|",
-                  f"| ftorch (final stage) | {final:.2f} | {report['average']['final']['features']['bn'] / len(classes):.1f} "
-                  "features (network nodes) |",
-                  f"| pixel 1-NN | {mean['pixel_nn']['clean']:.2f} | {mean['pixel_nn']['views_per_class']:.0f} views, "
-                  f"{mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
-                  f"| SIFT matching (ratio 0.75) | {mean['sift']['clean']:.2f} | "
+        mean, final = report["peers"]["average"], report["average"]["final"]["test"]
+        lines += ["## Peers on the same splits (clean test views, mean over folds; compared on top-1 accuracy)", "",
+                  "Each method gives one label per image (ftorch its top label); def. 4.6's accuracy scores ftorch's "
+                  "open-world answer, the set of classes it recognizes, as the thesis does.", "",
+                  "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |", "|---|---|---|---|",
+                  f"| ftorch (final stage) | {shown(final.get('top1'))} | {final['accuracy']:.2f} | "
+                  f"{report['average']['final']['features']['bn'] / len(classes):.1f} features (network nodes) |",
+                  f"| pixel 1-NN | {shown(mean['pixel_nn'].get('clean_top1'))} | {mean['pixel_nn']['clean']:.2f} | "
+                  f"{mean['pixel_nn']['views_per_class']:.0f} views, {mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
+                  f"| SIFT matching (ratio 0.75) | {shown(mean['sift'].get('clean_top1'))} | {mean['sift']['clean']:.2f} | "
                   f"{mean['sift']['descriptors_per_view']:.0f} descriptors per view, {mean['sift']['bytes_per_class'] / 1024:.0f} kB |", ""]
     lines += failing_section(report["folds"])
     if "seeds" in report:
@@ -348,6 +387,8 @@ def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
                   "| | novice | expert |", "|---|---|---|",
                   f"| accuracy, mean +- sd | {s['novice']['mean']:.3f} +- {s['novice']['sd']:.3f} | "
                   f"{s['expert']['mean']:.3f} +- {s['expert']['sd']:.3f} |",
+                  *([f"| top-1 accuracy, mean +- sd | {_spread(s['novice_top1'])} | {_spread(s['expert_top1'])} |"]
+                    if "novice_top1" in s else []),
                   f"| features queried, mean +- sd | {s['novice_queried']['mean']:.1f} +- {s['novice_queried']['sd']:.1f} | "
                   f"{s['expert_queried']['mean']:.1f} +- {s['expert_queried']['sd']:.1f} |", "",
                   f"Paired one-tailed t-test, expert > novice: t = {shown(s['t'])}, p = {shown(s['p'], '.2g')}"
