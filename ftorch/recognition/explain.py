@@ -163,17 +163,17 @@ class Explanation:
             lines.append((_legend_line(n, step, focus), colour))
         return draw.draw_trace(self.image, marks, lines, self._title(), min_side)
 
+    @property
+    def answer(self) -> str:
+        """The answer in words: the top class (and the recognized ones where they differ), the
+        recognized classes, or none (an ignorant result, def. 4.5)."""
+        if self.top is not None:
+            return f"top {self.top}" + ("" if self.recognized == {self.top} else f", recognized {_names(self.recognized) or 'none'}")
+        return f"recognized {_names(self.recognized)}" if self.recognized else "recognized none (ignorant)"
+
     def _title(self) -> str:
         focus = self.focus
-        if self.top is not None:
-            answer = f"top {self.top}"
-            if self.recognized != {self.top}:
-                answer += f", recognized {_names(self.recognized) or 'none'}"
-        elif self.recognized:
-            answer = f"recognized {_names(self.recognized)}"
-        else:
-            answer = "recognized none (ignorant)"
-        return (f"{self.name}: {answer}; P({focus}) {self.priors[focus]:.3f} -> {self.posteriors[focus]:.3f} "
+        return (f"{self.name}: {self.answer}; P({focus}) {self.priors[focus]:.3f} -> {self.posteriors[focus]:.3f} "
                 f"in {len(self.steps)} queries (green raised it, red lowered it)")
 
 
@@ -216,11 +216,12 @@ def _gather(feature: Feature, into: dict) -> None:
 
 
 def _legend_line(n: int, step: Step, focus: Hashable) -> str:
-    """Step n: its feature's type, its value against each holding node's threshold, and the focus
-    class's belief before and after."""
-    tests = ", ".join(f"{'>' if node.present else '<='} {node.threshold:.3f} {node.label}" for node in step.nodes)
+    """Step n: its feature's type, its value against each holding node's threshold (to as many
+    digits as tell them apart, 3 to 7), and the focus class's belief before and after."""
+    digits = next((d for d in range(3, 7) if all(f"{step.value:.{d}f}" != f"{node.threshold:.{d}f}" for node in step.nodes)), 7)
+    tests = ", ".join(f"{'>' if node.present else '<='} {node.threshold:.{digits}f} {node.label}" for node in step.nodes)
     where = "" if step.location.found else " (no point of its kind)"
-    return (f"{n}. {step.feature.describe()}: {step.value:.3f} {tests}{where}; "
+    return (f"{n}. {step.feature.describe()}: {step.value:.{digits}f} {tests}{where}; "
             f"P({focus}) {step.before[focus]:.3f} -> {step.beliefs[focus]:.3f}")
 
 
