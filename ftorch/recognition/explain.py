@@ -161,6 +161,8 @@ class Explanation:
             colour = step.effect(focus).colour
             marks.append((step.feature, step.where, colour, str(n)))
             lines.append((_legend_line(n, step, focus), colour))
+        # the steps that moved the focus class are drawn last, over those that did not
+        marks.sort(key=lambda mark: mark[2] != Effect.UNCHANGED.colour)
         return draw.draw_trace(self.image, marks, lines, self._title(), min_side)
 
     @property
@@ -216,13 +218,20 @@ def _gather(feature: Feature, into: dict) -> None:
 
 
 def _legend_line(n: int, step: Step, focus: Hashable) -> str:
-    """Step n: its feature's type, its value against each holding node's threshold (to as many
-    digits as tell them apart, 3 to 7), and the focus class's belief before and after."""
-    digits = next((d for d in range(3, 7) if all(f"{step.value:.{d}f}" != f"{node.threshold:.{d}f}" for node in step.nodes)), 7)
+    """Step n: its feature's type, its value against each holding node's threshold, and the focus
+    class's belief before and after, each to as many decimals as tell them apart (3 to 7)."""
+    digits = _digits(step.value, [node.threshold for node in step.nodes])
     tests = ", ".join(f"{'>' if node.present else '<='} {node.threshold:.{digits}f} {node.label}" for node in step.nodes)
-    where = "" if step.location.found else " (no point of its kind)"
+    where = "" if step.location.found else " (found nowhere)"
+    before, after = step.before[focus], step.beliefs[focus]
+    places = _digits(before, [after]) if before != after else 3
     return (f"{n}. {step.feature.describe()}: {step.value:.{digits}f} {tests}{where}; "
-            f"P({focus}) {step.before[focus]:.3f} -> {step.beliefs[focus]:.3f}")
+            f"P({focus}) {before:.{places}f} -> {after:.{places}f}")
+
+
+def _digits(value: float, others: list[float]) -> int:
+    """The decimals, 3 to 7, that write ``value`` apart from each of ``others``."""
+    return next((d for d in range(3, 7) if all(f"{value:.{d}f}" != f"{o:.{d}f}" for o in others)), 7)
 
 
 def _names(labels) -> str:
