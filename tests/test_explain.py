@@ -48,6 +48,10 @@ def _coil():
     return DistinctiveFeatureLearner(seed=0).fit(X, y, stages=0), X_test
 
 
+def _recognition(learner, image):
+    return learner.recognize(ImageSet([image], space=learner.space), 0)
+
+
 @pytest.mark.parametrize("task", ["plym", "coil"])
 def test_explain_answers_as_predict_on_every_test_image(task, plym):
     learner, images = plym[:2] if task == "plym" else _coil()
@@ -56,12 +60,8 @@ def test_explain_answers_as_predict_on_every_test_image(task, plym):
         explanation = learner.explain(image)
         assert explanation.recognized == answers[n] == learner.predict([image])[0]  # one image: image by image
         assert [explanation.posteriors[c] for c in learner.classes_] == proba[n].tolist()
-        assert explanation.top is None  # Recognition carries no top class yet: getattr(rec, "top", None)
+        assert explanation.top == getattr(_recognition(learner, image), "top", None)  # where Recognition names one
     assert any(answers) and any(learner.explain(image).steps for image in images[:3])
-
-
-def _recognition(learner, image):
-    return learner.recognize(ImageSet([image], space=learner.space), 0)
 
 
 @pytest.mark.parametrize("options", [{}, {"evidence": "positive", "test_information": 0.05}])
@@ -118,7 +118,7 @@ def test_the_json_form_is_strict_and_complete(plym):
     flat = learner.explain(torch.full((40, 40), 0.5))
     for explanation in (learner.explain(images[0]), flat):
         data = _strict(json.dumps(explanation.to_dict()))
-        assert data["recognized"] == sorted(explanation.recognized) and data["top"] is None
+        assert data["recognized"] == sorted(explanation.recognized) and data["top"] == explanation.top
         assert data["focus"] == explanation.focus and data["evidence"] == "both"
         assert data["priors"] == explanation.priors and data["posteriors"] == explanation.posteriors
         assert len(data["steps"]) == len(explanation.steps)
@@ -183,6 +183,9 @@ def test_the_picture_colours_each_step_by_its_effect_on_the_answer(plym):
     learner, images, _ = plym
     explanation = next(e for e in map(learner.explain, images)
                        if {s.effect(e.focus) for s in e.steps} >= {Effect.RAISED, Effect.LOWERED})
+    (r, g, b), (R, G, B) = COLOURS["raised"], COLOURS["lowered"]
+    assert g > max(r, b) and R > max(G, B) and Effect.RAISED.colour == COLOURS["raised"]  # green raised, red lowered
+    assert len(set(COLOURS["unchanged"])) == 1 and Effect.UNCHANGED.colour == COLOURS["unchanged"]  # grey
     picture = explanation.picture()
     assert picture.dtype == np.uint8 and picture.ndim == 3 and picture.shape[2] == 3
     assert min(picture.shape[:2]) > 384  # the 40-pixel image enlarged to 384, a title above it
@@ -237,10 +240,17 @@ def test_the_command_writes_one_json_and_one_png_per_image(saved, tmp_path, caps
     assert run.main(argv) == 0  # its own earlier output is replaced
 
 
-@pytest.mark.parametrize("case", ["damaged", "missing", "unreadable", "too small"])
+@pytest.mark.parametrize("case", ["damaged", "missing", "unreadable", "too small", "unmeasurable"])
 def test_bad_input_is_refused_in_one_line_and_writes_nothing(case, saved, tmp_path, capsys):
     learner, image = saved / "learner.json", saved / "views" / "view0.png"
-    if case == "damaged":
+    if case == "unmeasurable":  # a learner file that does not record its image size: the scale space refuses 6 pixels
+        learner = tmp_path / "unsized.json"
+        data = json.loads((saved / "learner.json").read_text())
+        data["learner"]["sides"] = None
+        learner.write_text(json.dumps(data))
+        image = tmp_path / "tiny.png"
+        cv2.imwrite(str(image), np.full((6, 6), 128, np.uint8))
+    elif case == "damaged":
         learner = tmp_path / "learner.json"
         learner.write_text((saved / "learner.json").read_text()[:-40])
     elif case == "missing":
@@ -253,9 +263,14 @@ def test_bad_input_is_refused_in_one_line_and_writes_nothing(case, saved, tmp_pa
         cv2.imwrite(str(image), np.full((20, 20), 128, np.uint8))
     out = tmp_path / "out"
     assert run.main(["explain", "--learner", str(learner), str(image), "--out", str(out), "--device", "cpu"]) == 2
-    message = _one_line(capsys)
+    if case == "unmeasurable":
+        note, message = capsys.readouterr().err.strip().splitlines()
+        assert note.startswith(f"note: {learner} does not record the image size it learned from")
+    else:
+        message = _one_line(capsys)
     expected = {"damaged": f"{learner}: not a readable checkpoint", "missing": f"{learner}: no such checkpoint file",
-                "unreadable": f"{image}: not a readable image file", "too small": "learned from images whose shorter side is 40"}
+                "unreadable": f"{image}: not a readable image file", "too small": "learned from images whose shorter side is 40",
+                "unmeasurable": f"{image}: image of 6x6 pixels is too small for the scale range"}
     assert message.startswith("error: ") and expected[case] in message, message
     assert not out.exists()
 

@@ -154,15 +154,14 @@ class Explanation:
     def picture(self, min_side: int = MIN_SIDE) -> np.ndarray:
         """The image (grey, enlarged to ``min_side``) with each queried feature drawn where it was
         found, numbered in query order and coloured by its :class:`Effect` on the :attr:`focus`
-        class; a legend below and the answer above. RGB uint8 (:func:`ftorch.space.draw.save_rgb` writes it)."""
+        class; beside it the legend (step, feature type, value against threshold, belief before and
+        after), above it the answer. RGB uint8 (:func:`ftorch.space.draw.save_rgb` writes it)."""
         focus = self.focus
-        marks, lines = [], []
-        for n, step in enumerate(self.steps, 1):
-            colour = step.effect(focus).colour
-            marks.append((step.feature, step.where, colour, str(n)))
-            lines.append((_legend_line(n, step, focus), colour))
+        effects = [step.effect(focus) for step in self.steps]
+        lines = [(_legend_line(n, step, focus), effect.colour) for n, (step, effect) in enumerate(zip(self.steps, effects), 1)]
         # the steps that moved the focus class are drawn last, over those that did not
-        marks.sort(key=lambda mark: mark[2] != Effect.UNCHANGED.colour)
+        order = sorted(range(len(self.steps)), key=lambda k: effects[k] is not Effect.UNCHANGED)
+        marks = [(self.steps[k].feature, self.steps[k].where, effects[k].colour, str(k + 1)) for k in order]
         return draw.draw_trace(self.image, marks, lines, self._title(), min_side)
 
     @property
