@@ -19,6 +19,9 @@ Commands:
   salient IMAGE... --out DIR   salient edgels and texels drawn as in figure 3.9, one PNG per
                                image, counts printed and written to DIR/salient.json.
                                Without images it uses the built-in scene.
+  explain --learner PATH IMAGE... --out DIR   a saved learner's recognition of each image
+                               traced (alg. 4.4): DIR/<image>.json (each query's feature, value,
+                               presence per network, location, beliefs) and DIR/<image>.png.
 With no command at all it runs recognize on the built-in Plym-like task into runs/plym.
 """
 from __future__ import annotations
@@ -44,7 +47,7 @@ from pathlib import Path  # noqa: E402
 
 from ftorch.errors import InputError  # noqa: E402
 from training.cli.arguments import Parser  # noqa: E402
-from training.commands import evaluate, recognize, robustness, salient, tradeoff  # noqa: E402
+from training.commands import evaluate, explain, recognize, robustness, salient, tradeoff  # noqa: E402
 from training.grasping.command import add_parser as add_grasp_parser  # noqa: E402
 
 
@@ -55,7 +58,7 @@ def parser() -> argparse.ArgumentParser:
     commands = top.add_subparsers(dest="command")
     recognize.add_parsers(commands)
     add_grasp_parser(commands)
-    for command in (evaluate, robustness, tradeoff, salient):
+    for command in (evaluate, robustness, tradeoff, salient, explain):
         command.add_parser(commands)
     return top
 

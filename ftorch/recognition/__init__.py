@@ -3,11 +3,12 @@ recognition by querying them (alg. 4.4), and the incremental learner (alg. 4.7-4
 with its parts: the instance list and counts, candidate generation, expert pair choice."""
 from .bayes import ClassNetwork
 from .environment import ImageSet
+from .explain import Explanation
 from .inference import Answer, Outcome, Recognition, Result, accuracy, outcome, recognize, top1_accuracy, top_class
 from .learner import DistinctiveFeatureLearner, Presentation
 from .settings import Evidence, LearnerSettings
 from .stages import ClassAdded, Cycle, Schedule, Stage
 
-__all__ = ["Answer", "ClassAdded", "ClassNetwork", "Cycle", "DistinctiveFeatureLearner", "Evidence", "ImageSet", "LearnerSettings",
-           "Outcome", "Presentation", "Recognition", "Result", "Schedule", "Stage", "accuracy", "outcome", "recognize",
-           "top1_accuracy", "top_class"]
+__all__ = ["Answer", "ClassAdded", "ClassNetwork", "Cycle", "DistinctiveFeatureLearner", "Evidence", "Explanation",
+           "ImageSet", "LearnerSettings", "Outcome", "Presentation", "Recognition", "Result", "Schedule", "Stage",
+           "accuracy", "outcome", "recognize", "top1_accuracy", "top_class"]

@@ -75,6 +75,7 @@ from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
 from .environment import ImageSet
 from .expertise import choose_pair
+from .explain import Explanation, explain
 from .inference import (
     Answer,
     Outcome,
@@ -373,6 +374,13 @@ class DistinctiveFeatureLearner:
         self._check_fitted()
         threshold = self.settings.test_information if information is None else bits("information", information)
         return self._recognize_many(env, images, threshold, top=True)
+
+    def explain(self, image) -> Explanation:
+        """The trace of this learner's recognition of one ``image`` (a file path, array or tensor): the
+        features alg. 4.4 queried in order, their values, presence per network and location, each
+        class's belief after each query, and a picture of it (:mod:`ftorch.recognition.explain`). Its
+        answer is ``predict([image])[0]``: the same recognition, with ``test_information`` and ``evidence``."""
+        return explain(self, image)
 
     def _recognize_many(self, env: ImageSet, images, threshold: float, top: bool = False) -> list[Recognition]:
         images = [env.index(i) for i in images]

@@ -243,3 +243,64 @@ def grid(pictures: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
         r, c = divmod(i, columns)
         out[r * (height + gap): r * (height + gap) + p.shape[0], c * (width + gap): c * (width + gap) + p.shape[1]] = p
     return out
+
+
+# -- a recognition's trace (ftorch.recognition.explain): located features numbered and coloured, legend, title
+
+TRACE_LEGEND = 600  # the width of the trace's legend column, pixels
+
+
+def grey_canvas(image, min_side: int) -> tuple[np.ndarray, float]:
+    """A grey (H, W) image (tensor or array) stretched to its range, faded and enlarged by pixel
+    repetition to at least ``min_side`` pixels a side, as RGB uint8; and the zoom: the background
+    :func:`draw_features` draws on, for one image without its records."""
+    grey = np.asarray(image.detach().cpu() if isinstance(image, Tensor) else image, dtype=np.float64)
+    lo, hi = float(grey.min()), float(grey.max())
+    grey = (grey - lo) / (hi - lo) if hi > lo else np.zeros_like(grey)
+    height, width = grey.shape
+    zoom = max(1.0, min_side / min(height, width))
+    big = cv2.resize((grey * 255).astype(np.uint8), (round(width * zoom), round(height * zoom)), interpolation=cv2.INTER_NEAREST)
+    faded = (0.55 * big + 0.45 * 255).astype(np.uint8)
+    return cv2.cvtColor(faded, cv2.COLOR_GRAY2RGB), zoom
+
+
+def text_strip(lines, width: int, scale: float = 0.36, pitch: int = 14) -> np.ndarray:
+    """A white strip ``width`` pixels wide holding ``lines`` of (text, colour), each wrapped at spaces
+    to the width (continuations indented)."""
+    rows = []
+    for text, colour in lines:
+        words, row = text.split(" "), ""
+        for word in words:
+            longer = f"{row} {word}" if row else word
+            if row and cv2.getTextSize(longer, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width - 8:
+                rows.append((row, colour))
+                row = "   " + word
+            else:
+                row = longer
+        rows.append((row, colour))
+    strip = np.full((pitch // 2 + pitch * len(rows), width, 3), 255, np.uint8)
+    for n, (text, colour) in enumerate(rows):
+        cv2.putText(strip, text, (4, pitch + pitch * n - 2), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+    return strip
+
+
+def draw_trace(image, marks, lines, title: str, min_side: int = 384) -> np.ndarray:
+    """One image with located features drawn on it, RGB uint8: ``marks`` are (feature, where, colour,
+    label), ``where`` mapping the feature and its sub-features to (x, y, sigma, theta) as
+    :func:`~ftorch.space.evaluate.feature_values` locates them (NaN: not drawn); each is drawn as
+    :func:`draw_features` draws it, ``label`` beside its reference point. Right of the image the
+    marker key and ``lines`` of (text, colour); ``title`` above both."""
+    canvas, zoom = grey_canvas(image, min_side)
+    for feature, where, colour, label in marks:
+        point = _draw_located(canvas, feature, where, zoom, colour)
+        if point is not None and label:
+            at = (int(point[0]) + 4, int(point[1]) - 4)
+            cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 3, cv2.LINE_AA)
+            cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+    legend = text_strip([(key, (90, 90, 90)) for key in LEGEND_KEY] + list(lines), TRACE_LEGEND)
+    height = max(canvas.shape[0], legend.shape[0])
+    body = np.full((height, canvas.shape[1] + 8 + TRACE_LEGEND, 3), 255, np.uint8)
+    body[:canvas.shape[0], :canvas.shape[1]] = canvas
+    body[:legend.shape[0], canvas.shape[1] + 8:] = legend
+    head = text_strip([(title, (0, 0, 0))], body.shape[1], scale=0.5, pitch=20)
+    return np.concatenate([head, body], axis=0)

@@ -58,6 +58,7 @@ class Command(StrEnum):
     ROBUSTNESS = "robustness"
     TRADEOFF = "tradeoff"
     SALIENT = "salient"
+    EXPLAIN = "explain"
 
 
 # the report each command writes at the top of its folder: how a folder is known whose ledger does not name its command

@@ -210,6 +210,15 @@ def _is_image(path: Path) -> bool:
     return path.suffix.lower() in IMAGE_SUFFIXES or cv2.haveImageReader(str(path))
 
 
+def image_files(root) -> tuple[list[Path], list[Path]]:
+    """The image files below ``root`` in name order, as class folders take them (:func:`_is_image`;
+    symbolic links to folders followed, hidden files and folders left out), and the other files."""
+    root = Path(root)
+    visible = [p for p in _files(root) if not any(part.startswith(".") for part in p.relative_to(root).parts)]
+    readable = [_is_image(p) for p in visible]
+    return [p for p, ok in zip(visible, readable) if ok], [p for p, ok in zip(visible, readable) if not ok]
+
+
 def plym_task(size: int = 64, seed: int = 0, classes: int | None = None, views: int | None = None,
               first_view: int = 0) -> Task:
     """The built-in Plym-like task: the first ``classes`` (default all 8) rendered solids x ``views``
