@@ -56,11 +56,12 @@ def _recognition(learner, image):
 def test_explain_answers_as_predict_on_every_test_image(task, plym):
     learner, images = plym[:2] if task == "plym" else _coil()
     answers, proba = learner.predict(images), learner.predict_proba(images)  # as one block (24 images and more)
+    tops = learner.predict(images, answer="top-1")
     for n, image in enumerate(images):
         explanation = learner.explain(image)
         assert explanation.recognized == answers[n] == learner.predict([image])[0]  # one image: image by image
         assert [explanation.posteriors[c] for c in learner.classes_] == proba[n].tolist()
-        assert explanation.top == getattr(_recognition(learner, image), "top", None)  # where Recognition names one
+        assert explanation.top == tops[n] is not None  # the top-1 answer too
     assert any(answers) and any(learner.explain(image).steps for image in images[:3])
 
 
@@ -109,7 +110,7 @@ def test_values_and_locations_are_feature_values_of_the_image(plym):
         assert len(expected) == len(explanation.steps) > 0
         for step, location in zip(explanation.steps, expected):
             assert np.array_equal(step.location, location, equal_nan=True)
-            assert step.where[step.feature] is step.location
+            assert step.where[step.feature, ()] is step.location
     assert not any(s.location.found for s in learner.explain(flat).steps)
 
 
@@ -312,3 +313,29 @@ def test_a_folder_stands_for_its_images_in_name_order(saved, tmp_path, capsys):
     captured = capsys.readouterr()
     assert [Path(line.split(":")[0]) for line in captured.out.splitlines()] == [folder / "a.png", folder / "c.png", folder / "b/2.png"]
     assert "1 file(s)" in captured.err and "notes.txt" in captured.err
+
+
+def test_a_region_bound_feature_is_located_and_drawn_inside_its_region():
+    """A learner with regions (the task of tests/test_search.py where only the place tells the classes
+    apart): each bounded step is found inside its disc, drawn there, and the JSON names the region."""
+    from ftorch.space.features import Within
+    from tests.test_search import _spot
+    rng = np.random.default_rng(0)
+    images = [_spot(rng) if k % 2 == 0 else np.ascontiguousarray(np.rot90(_spot(rng), 2)) for k in range(12)]
+    labels = ["upper left" if k % 2 == 0 else "lower right" for k in range(12)]
+    learner = DistinctiveFeatureLearner(seed=0, primitives="texture", contrast=4, regions="image").fit(
+        images, labels, stages=0, max_cycles=5)
+    bounded = 0
+    for image in images[:4]:
+        explanation = learner.explain(image)
+        for step, entry in zip(explanation.steps, explanation.to_dict()["steps"]):
+            if not isinstance(step.feature, Within) or not step.location.found:
+                continue
+            bounded += 1
+            region = step.feature.region
+            u, v = (step.location.x + 0.5) / 48, (step.location.y + 0.5) / 48
+            assert (u - region.x) ** 2 + (v - region.y) ** 2 <= region.radius ** 2 + 1e-12
+            assert step.where[step.feature.feature, (region,)] is step.location  # its part, located inside
+            assert entry["region"] == region.to_dict()
+        assert explanation.picture().ndim == 3
+    assert bounded

@@ -89,8 +89,9 @@ class Node:
 class Step:
     """One query of alg. 4.4: the ``feature`` with the largest mutual information, its ``value`` in
     the image, the ``nodes`` holding it, where it was found, and each class's belief before and
-    after its evidence was entered. ``where``: the located points of the feature and of its
-    sub-features (for drawing compounds)."""
+    after its evidence was entered. ``where``: the located points of its parts, keyed by (part,
+    regions around it) as :func:`ftorch.space.draw.to_locate` keys them (for drawing compounds and
+    region-bound features, each part where it is strongest inside its regions)."""
 
     feature: Feature
     value: float
@@ -186,11 +187,13 @@ def explain(learner: "DistinctiveFeatureLearner", image) -> Explanation:
         raise InputError("explain takes one image (a file path, array or tensor); predict takes a list")
     env = ImageSet([image], space=learner.space)
     rec = learner.recognize(env, 0)
-    every = {}  # the queried features first, then their sub-features: where each was found
+    every: dict = {}  # (part, regions around it) -> the feature that locates it, as a drawing keys them
     for feature in rec.queried:
-        _gather(feature, every)
-    found = feature_values(list(every), env.record(0)) if every else None
-    where = {f: Location(*(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta))) for f, j in every.items()}
+        draw.to_locate(feature, every)
+    measured = list(dict.fromkeys([*rec.queried, *every.values()]))
+    found = feature_values(measured, env.record(0)) if measured else None
+    where = {f: Location(*(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta)))
+             for j, f in enumerate(measured)}
     return Explanation(frozenset(rec.recognized), rec.top, dict(rec.posteriors), dict(rec.beliefs[0]),
                        tuple(_steps(learner, rec, where)), learner.settings.evidence, learner.settings.test_information,
                        env.names[0], env.images[0])
@@ -202,18 +205,11 @@ def _steps(learner: "DistinctiveFeatureLearner", rec: Recognition, where: dict) 
         value = rec.values[feature]
         nodes = tuple(Node(label, float(net.threshold[feature]), bool(value > net.threshold[feature]))
                       for label, net in learner.networks.items() if feature in net)
-        parts = {}
-        _gather(feature, parts)
+        parts: dict = {}
+        draw.to_locate(feature, parts)
         out.append(Step(feature, float(value), nodes, where[feature], dict(rec.beliefs[n]), dict(rec.beliefs[n + 1]),
-                        {f: where[f] for f in parts}))
+                        {key: where[located] for key, located in parts.items()}))
     return out
-
-
-def _gather(feature: Feature, into: dict) -> None:
-    """``feature`` and its sub-features, each once, in ``into`` (feature -> position)."""
-    into.setdefault(feature, len(into))
-    for sub in feature.subfeatures():
-        _gather(sub, into)
 
 
 def _legend_line(n: int, step: Step, focus: Hashable) -> str:

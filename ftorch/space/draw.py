@@ -100,18 +100,19 @@ PALETTE = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30
            (240, 50, 230), (128, 128, 0), (0, 0, 128), (170, 110, 40), (128, 0, 0), (0, 128, 128)]
 
 
-def _subfeatures(feature: Feature, out: dict, regions: tuple[Region, ...] = ()) -> None:
+def to_locate(feature: Feature, out: dict, regions: tuple[Region, ...] = ()) -> None:
     """Every (part, regions around it) drawn for ``feature``, with the feature to locate for it:
-    the part itself, or the part bounded by those regions (where it is strongest inside them)."""
+    the part itself, or the part bounded by those regions (where it is strongest inside them). The
+    located points of those features, keyed as ``out`` is, are what a drawing's ``where`` holds."""
     if isinstance(feature, Within):
-        _subfeatures(feature.feature, out, bounded_by(regions, feature.region))
+        to_locate(feature.feature, out, bounded_by(regions, feature.region))
         return
     bounded = feature
     for region in regions:
         bounded = Within(bounded, region)
     out.setdefault((feature, regions), bounded)
     for sub in feature.subfeatures():
-        _subfeatures(sub, out, regions)
+        to_locate(sub, out, regions)
 
 
 OUTLINE_LIMIT = 1 << 20  # pixels: OpenCV's fixed-point coordinates hold no more (16 * 2^20 < 2^31)
@@ -199,7 +200,7 @@ def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_
     features = list(features)
     every: dict = {}
     for f in features:
-        _subfeatures(f, every)
+        to_locate(f, every)
     where = {}
     if every:
         found = feature_values(list(every.values()), records[n])
