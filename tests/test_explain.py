@@ -14,7 +14,8 @@ from ftorch.images import to_uint8
 from ftorch.recognition import Evidence
 from ftorch.recognition.explain import COLOURS, Effect, Explanation, Location, Step
 from ftorch.space.evaluate import feature_values
-from ftorch.space.features import Feature
+from ftorch.space.features import Feature, Texel, Within
+from ftorch.space.region import Region
 from training import run
 from training.cli.outputs import Command, Ledger
 from training.data.datasets import coil_task, plym_task
@@ -135,34 +136,21 @@ def test_the_json_form_is_strict_and_complete(plym):
     assert all(row["location"] == dict.fromkeys(("x", "y", "sigma", "theta")) for row in flat.to_dict()["steps"])
 
 
-class _Region:
-    def to_dict(self):
-        return {"frame": "image", "box": [0.0, 0.0, 0.5, 0.5]}
-
-
-class _Bound:
-    """A stand-in for a region-bound feature: anything with ``region.to_dict()``."""
-
-    region = _Region()
-
-    def to_dict(self):
-        return {"type": "within"}
-
-    def describe(self):
-        return "within(texel)"
+_BOUND = Within(Texel([1.0] + [0.0] * 14), Region("image", 0.25, 0.75, 0.125))
 
 
 def test_a_region_bound_feature_writes_its_region():
     nan = Location(math.nan, math.nan, math.nan, math.nan)
-    step = Step(_Bound(), 0.0, (), nan, {"a": 0.5}, {"a": 0.5}, {})
-    assert step.to_dict()["region"] == {"frame": "image", "box": [0.0, 0.0, 0.5, 0.5]}
+    step = Step(_BOUND, 0.0, (), nan, {"a": 0.5}, {"a": 0.5}, {})
+    assert step.region == _BOUND.region
+    assert step.to_dict()["region"] == {"frame": "image", "x": 0.25, "y": 0.75, "radius": 0.125}
     assert step.to_dict()["location"] == {"x": None, "y": None, "sigma": None, "theta": None}
 
 
 def _explanation(posteriors: dict, recognized: set, top=None) -> Explanation:
     beliefs = dict.fromkeys(posteriors, 0.5)
     nan = Location(math.nan, math.nan, math.nan, math.nan)
-    steps = (Step(_Bound(), 0.0, (), nan, beliefs, posteriors, {}),)
+    steps = (Step(_BOUND, 0.0, (), nan, beliefs, posteriors, {}),)
     return Explanation(frozenset(recognized), top, posteriors, beliefs, steps, Evidence.BOTH, 0.0, "x", torch.zeros(9, 9))
 
 
@@ -318,7 +306,6 @@ def test_a_folder_stands_for_its_images_in_name_order(saved, tmp_path, capsys):
 def test_a_region_bound_feature_is_located_and_drawn_inside_its_region():
     """A learner with regions (the task of tests/test_search.py where only the place tells the classes
     apart): each bounded step is found inside its disc, drawn there, and the JSON names the region."""
-    from ftorch.space.features import Within
     from tests.test_search import _spot
     rng = np.random.default_rng(0)
     images = [_spot(rng) if k % 2 == 0 else np.ascontiguousarray(np.rot90(_spot(rng), 2)) for k in range(12)]

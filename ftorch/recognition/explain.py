@@ -26,7 +26,8 @@ from torch import Tensor
 from ..errors import InputError
 from ..space import draw
 from ..space.evaluate import feature_values
-from ..space.features import Feature
+from ..space.features import Feature, Within
+from ..space.region import Region
 from .environment import ImageSet
 from .inference import Recognition
 from .settings import Evidence
@@ -102,9 +103,9 @@ class Step:
     where: dict = field(repr=False, compare=False)
 
     @property
-    def region(self):
-        """The region the feature is bound to (a region-bound feature's ``region``), or None."""
-        return getattr(self.feature, "region", None)
+    def region(self) -> Region | None:
+        """The region a region-bound feature (:class:`~ftorch.space.features.Within`) is bound to, or None."""
+        return self.feature.region if isinstance(self.feature, Within) else None
 
     def effect(self, label: Hashable) -> Effect:
         """What this step did to the belief of class ``label``."""
@@ -114,7 +115,7 @@ class Step:
         region = self.region
         return {"feature": self.feature.to_dict(), "describe": self.feature.describe(), "value": _finite(self.value),
                 "networks": [node.to_dict() for node in self.nodes], "location": self.location.to_dict(),
-                "region": region.to_dict() if hasattr(region, "to_dict") else None, "beliefs": _beliefs(self.beliefs)}
+                "region": None if region is None else region.to_dict(), "beliefs": _beliefs(self.beliefs)}
 
 
 @dataclass(frozen=True)

@@ -201,8 +201,7 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     ``top``: also fill :attr:`Recognition.top` (:func:`top_class`), which may measure more features.
     """
     plan = Plan.of(networks, plan)
-    labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
-    start, slot_key, slots = plan.start, plan.slot_key, plan.slots
+    labels, nets, keys, slot_key = plan.labels, plan.nets, plan.keys, plan.slot_key
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
     evaluated = [net.inference.evaluate(state) for net, state in zip(nets, states)]
     belief = [e[0] for e in evaluated]
@@ -210,6 +209,37 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     asked = np.zeros(len(slot_key), dtype=bool)
     beliefs = [dict(zip(labels, belief))]
     queried, values = [], {}
+
+    def record(key, value):
+        values[key] = value
+        queried.append(key)
+        beliefs.append(dict(zip(labels, belief)))
+
+    _sequential(plan, states, belief, informative, asked, measure, tolerance, positive_only, record=record)
+    posteriors = beliefs[-1]
+    rec = Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
+    if top:
+        rec.top = top_class(networks, rec, measure, plan, positive_only)
+    return rec
+
+
+def _entered(net: ClassNetwork, state: np.ndarray, position: int, present: bool) -> tuple | None:
+    """``state`` with node ``position`` observed (present or absent) and the network's (posterior,
+    informations) under it; None where the network deems that evidence impossible (not entered)."""
+    trial = state.copy()
+    trial[position] = int(present)
+    posterior, info = net.inference.evaluate(trial)
+    return (trial, posterior, info) if posterior == posterior else None  # NaN: impossible
+
+
+def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.ndarray, measure, tolerance: float,
+                positive_only: bool, chosen: np.ndarray | None = None, record=None) -> None:
+    """Alg. 4.4's loop from the evidence ``states`` (per network), ``belief`` (posteriors) and the
+    slots' ``informative`` and ``asked`` (all updated in place): query the feature of largest mutual
+    information (ties: first network, first feature) while it exceeds ``tolerance``, and enter its
+    presence or absence into every network holding it (the ``chosen`` ones only, where given);
+    ``record(feature, value)`` after each query."""
+    start, slot_key, slots, keys = plan.start, plan.slot_key, plan.slots, plan.keys
     while len(informative):
         slot = int(informative.argmax())
         if not informative[slot] > tolerance:
@@ -219,24 +249,18 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
         asked[slots[best]] = True
         informative[slots[best]] = 0.0
         value = float(measure(key))
-        values[key] = value
-        queried.append(key)
-        for n in holders[best]:
-            present = value > nets[n].threshold[key]
+        for n in plan.holders[best]:
+            if chosen is not None and not chosen[n]:
+                continue
+            present = value > plan.nets[n].threshold[key]
             if positive_only and not present:
                 continue
-            trial = states[n].copy()
-            trial[local[n][key]] = int(present)
-            posterior, info = nets[n].inference.evaluate(trial)
-            if posterior == posterior:  # not NaN: the evidence is possible
-                states[n], belief[n] = trial, posterior
+            entered = _entered(plan.nets[n], states[n], plan.local[n][key], present)
+            if entered is not None:
+                states[n], belief[n], info = entered
                 informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
-        beliefs.append(dict(zip(labels, belief)))
-    posteriors = beliefs[-1]
-    rec = Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried, values, beliefs)
-    if top:
-        rec.top = top_class(networks, rec, measure, plan, positive_only)
-    return rec
+        if record is not None:
+            record(key, value)
 
 
 def _replayed(net: ClassNetwork, local: dict, rec: Recognition, positive_only: bool) -> np.ndarray:
@@ -250,11 +274,9 @@ def _replayed(net: ClassNetwork, local: dict, rec: Recognition, positive_only: b
         present = rec.values[key] > net.threshold[key]
         if positive_only and not present:
             continue
-        trial = state.copy()
-        trial[local[key]] = int(present)
-        posterior = net.inference.evaluate(trial)[0]
-        if posterior == posterior:  # not NaN: the evidence is possible
-            state = trial
+        entered = _entered(net, state, local[key], present)
+        if entered is not None:
+            state = entered[0]
     return state
 
 
@@ -276,7 +298,7 @@ def top_class(networks: dict[Hashable, ClassNetwork], rec: Recognition, measure:
     if len(rec.recognized) == 1:
         return next(iter(rec.recognized))
     plan = Plan.of(networks, plan)
-    labels, nets, keys, local, holders = plan.labels, plan.nets, plan.keys, plan.local, plan.holders
+    labels, nets, local = plan.labels, plan.nets, plan.local
     start, slot_key, slots = plan.start, plan.slot_key, plan.slots
     candidates = [n for n, c in enumerate(labels) if c in rec.recognized] or list(range(len(labels)))
     if len(candidates) <= 1:
@@ -292,27 +314,7 @@ def top_class(networks: dict[Hashable, ClassNetwork], rec: Recognition, measure:
         states[n] = _replayed(nets[n], local[n], rec, positive_only)
         belief[n], info = nets[n].inference.evaluate(states[n])
         informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
-    while len(informative):
-        slot = int(informative.argmax())
-        if not informative[slot] > TOP_TOLERANCE:
-            break
-        best = int(slot_key[slot])
-        key = keys[best]
-        asked[slots[best]] = True
-        informative[slots[best]] = 0.0
-        value = float(measure(key))
-        for n in holders[best]:
-            if not chosen[n]:
-                continue
-            present = value > nets[n].threshold[key]
-            if positive_only and not present:
-                continue
-            trial = states[n].copy()
-            trial[local[n][key]] = int(present)
-            posterior, info = nets[n].inference.evaluate(trial)
-            if posterior == posterior:  # not NaN: the evidence is possible
-                states[n], belief[n] = trial, posterior
-                informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
+    _sequential(plan, states, belief, informative, asked, measure, TOP_TOLERANCE, positive_only, chosen)
     largest = max(belief[n] for n in candidates)
     tied = [n for n in candidates if belief[n] == largest]
     if len(tied) > 1:  # saturated in float: the log odds still tell them apart; then network order
