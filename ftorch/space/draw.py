@@ -35,14 +35,10 @@ CORNER_COLOUR = (40, 120, 255)
 
 
 def _canvas(records: ImageRecords, n: int, image: Tensor | np.ndarray, min_side: int) -> tuple[np.ndarray, float]:
+    """:func:`grey_canvas` of image n of ``records``, given as its pixels in any (H, W)-sized shape."""
     height, width = (int(v) for v in records.sizes[n])
-    grey = np.asarray(image.detach().cpu() if isinstance(image, Tensor) else image, dtype=np.float64).reshape(height, width)
-    lo, hi = float(grey.min()), float(grey.max())
-    grey = (grey - lo) / (hi - lo) if hi > lo else np.zeros_like(grey)
-    zoom = max(1.0, min_side / min(height, width))
-    big = cv2.resize((grey * 255).astype(np.uint8), (round(width * zoom), round(height * zoom)), interpolation=cv2.INTER_NEAREST)
-    faded = (0.55 * big + 0.45 * 255).astype(np.uint8)
-    return cv2.cvtColor(faded, cv2.COLOR_GRAY2RGB), zoom
+    grey = np.asarray(image.detach().cpu() if isinstance(image, Tensor) else image, dtype=np.float64)
+    return grey_canvas(grey.reshape(height, width), min_side)
 
 
 def _centre(x: float, y: float, zoom: float) -> tuple[float, float]:
