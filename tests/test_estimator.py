@@ -108,6 +108,8 @@ def test_one_set_of_defaults_the_measured_best_and_a_thesis_preset():
     best, thesis = LearnerSettings(), LearnerSettings.thesis()
     assert (best.min_information, best.pseudocount, best.redundancy) == (0.1, 1.0, 3)
     assert (thesis.min_information, thesis.pseudocount, thesis.redundancy) == (0.0, 0.0, 1)
+    assert (best.primitives, best.contrast) == (("texel", "edgel", "texture"), 4)  # one default for objects and faces
+    assert (thesis.primitives, thesis.contrast) == (("texel", "edgel"), 1)  # alg. 4.10 as printed
     assert DistinctiveFeatureLearner().settings == best and DistinctiveFeatureLearner.thesis().settings == thesis
     assert RunConfig("t").learner == best
     args = parser().parse_args(["recognize"])

@@ -246,7 +246,7 @@ def test_options_are_saved_validated_and_refused_with_one_line(shapes):
     assert copy.settings == LearnerSettings(n_ex=5, n_fgen=10, min_information=0.0, search_rounds=3, redundancy=2,
                                             evidence="positive", pseudocount=0.5, leak=0.05, cut_position=0.5,
                                             test_information=0.2, primitives=(Primitive.EDGEL, Primitive.TEXTURE),
-                                            calibrate=False)
+                                            contrast=1, calibrate=False)
     for bad in ({"search_rounds": 0}, {"redundancy": 0}, {"evidence": "negative"}, {"pseudocount": -1.0},
                 {"pseudocount": float("nan")}, {"test_information": 1.0}, {"test_information": float("nan")},
                 {"leak": 0.5}, {"leak": -0.1}, {"leak": float("nan")}, {"primitives": ""}, {"calibrate": "yes"}):

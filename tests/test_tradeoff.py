@@ -11,7 +11,7 @@ import torch
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack, unpack
-from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel
+from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture, Within
 from training.recognition.peers import PixelNN, SiftMatcher, score, sift_descriptors
 from training.recognition.tradeoff import Point, budget_rows, keypoint_budgets
 
@@ -38,6 +38,10 @@ def packed_size(networks) -> int:
             return inner + 1 + 15 * 4
         if isinstance(feature, Geometric):
             return inner + 2 + sum(1 + 4 * len(p.vector) + 16 * (k > 0) for k, p in enumerate(feature.parts))
+        if isinstance(feature, Texture):
+            return inner + 2 + 4 * len(feature.histogram)  # code, level, histogram
+        if isinstance(feature, Within):
+            return inner + 2 + 3 * 4 + 2  # code, frame, x y radius, the bounded feature's position
         return inner + 1 + 2 * 2
 
     size = 4 + sum(feature_bytes(f) for net in networks.values() for f in net.features)
@@ -47,14 +51,15 @@ def packed_size(networks) -> int:
 
 
 def rounded(feature: Feature) -> Feature:
-    """The feature with every parameter rounded to float32, through its JSON form."""
+    """The feature with every parameter rounded to float32, through its JSON form (a texture's sigma
+    is packed as its level, exact)."""
     def walk(x):
         if isinstance(x, float):
             return f32(x)
         if isinstance(x, list):
             return [walk(v) for v in x]
         if isinstance(x, dict):
-            return {k: walk(v) for k, v in x.items()}
+            return {k: v if k == "sigma" else walk(v) for k, v in x.items()}
         return x
     return Feature.from_dict(walk(feature.to_dict()))
 

@@ -3,8 +3,10 @@ runner's command line, its run configuration and the saved state alike.
 
 Two presets. :class:`LearnerSettings` () holds the measured best (chosen on seeds 5-9 and on
 development data, never on reported views; docs/results.md): a learning threshold of 0.1 bits,
-pseudocount 1 and redundancy 3. :meth:`LearnerSettings.thesis` holds the dissertation's own
-settings: recognition until I_max = 0, relative-frequency CPTs and alg. 5.2 as printed. Each
+pseudocount 1, redundancy 3, the three primitives (texel, edgel pair, statistical texture) and a
+contrastive search of factor 4, one setting for COIL objects and faces alike.
+:meth:`LearnerSettings.thesis` holds the dissertation's own settings: recognition until I_max = 0,
+relative-frequency CPTs, alg. 5.2 and alg. 4.10 as printed (texels and edgel pairs, one draw of n_fgen). Each
 field's ``help`` is what the command line prints for it (``--n-ex`` for ``n_ex``).
 """
 from __future__ import annotations
@@ -54,12 +56,12 @@ class LearnerSettings(Settings):
     test_information: float = option(0.0, "the stopping threshold of the learner's answers (0: every "
                                       "informative feature is asked)", "BITS")
     primitives: tuple[Primitive, ...] = option(
-        THESIS_PRIMITIVES, f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
+        tuple(Primitive), f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
         "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
     regions: tuple[Frame, ...] = option(
         (), f"the frames in which a search bounds features to regions, general-to-specific: none, or a "
         f"comma-separated choice of {', '.join(Frame)} (none: a feature looks anywhere, as the thesis's)", "LIST")
-    contrast: int = option(1, "contrastive search: each generation method draws N x n_fgen candidates, those "
+    contrast: int = option(4, "contrastive search: each generation method draws N x n_fgen candidates, those "
                            "that sample images from the misrecognized or sample image and the class's other examples "
                            "in turn, and tries the n_fgen most distinctive on the search's images first (1: alg. 4.10 "
                            "as printed)", "N", at_least=1, at_most=100, what="a factor")
@@ -92,9 +94,10 @@ class LearnerSettings(Settings):
 
     @classmethod
     def thesis(cls, **changes) -> "LearnerSettings":
-        """The dissertation's settings (alg. 4.4 until I_max = 0, relative frequencies, alg. 5.2 as
-        printed), with ``changes``."""
-        return cls(min_information=0.0, pseudocount=0.0, redundancy=1).replace(**changes)
+        """The dissertation's settings (alg. 4.4 until I_max = 0, relative frequencies, alg. 5.2 and
+        alg. 4.10 as printed), with ``changes``."""
+        return cls(min_information=0.0, pseudocount=0.0, redundancy=1, primitives=THESIS_PRIMITIVES,
+                   contrast=1).replace(**changes)
 
     def to_dict(self) -> dict:
         """JSON-ready: the primitives and the regions' frames as comma-separated strings, the evidence as its name."""

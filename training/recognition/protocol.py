@@ -80,6 +80,10 @@ def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recogni
             "sampled": learner.sampled}
 
 
+# what a run written before an option existed ran with (the option's value then, not its default now)
+BEFORE = {"leak": 0.0, "primitives": "texel,edgel", "calibrate": False, "dynamic": False, "regions": "", "contrast": 1}
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """A run's settings, as its report and every fold checkpoint record them (a fold resumes only
@@ -224,10 +228,8 @@ class Fold:
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
         stored = data.get("config")
-        if isinstance(stored, dict):  # a run written before these options existed ran with their defaults
-            defaults = RunConfig(self.config.task).to_dict()
-            stored = {**{k: defaults[k] for k in ("leak", "primitives", "calibrate", "dynamic", "regions", "contrast")},
-                      "images": self.config.images, **stored}  # nor did it record its images: not checked
+        if isinstance(stored, dict):  # a run written before these options existed ran with BEFORE's values
+            stored = {**BEFORE, "images": self.config.images, **stored}  # nor did it record its images: not checked
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")

@@ -41,7 +41,7 @@ from ftorch.space.record import FeatureSpace
 
 from ..data.datasets import Task, load_task
 from .peers import PixelNN, SiftMatcher, score, score_ranked, sift_descriptors
-from .protocol import RunConfig, same_images, test_block
+from .protocol import BEFORE, RunConfig, same_images, test_block
 from .robustness import fold_sets, views
 
 SIDES = (4, 8, 16, 32, None)  # pixel 1-NN image sides; None: as stored
@@ -98,8 +98,8 @@ def run_learners(run: Path) -> tuple[dict, list[Learner]]:
 
 def settings(configs: list[dict], runs: list[Path]) -> list[str]:
     """A name for each run: the options in which the runs differ (else the folder's name); an option
-    a run's config does not record (written before the option existed) ran at its default."""
-    configs = [{**RunConfig(c["task"]).to_dict(), **c} for c in configs]
+    a run's config does not record (written before the option existed) ran at its value then (``BEFORE``)."""
+    configs = [{**RunConfig(c["task"]).to_dict(), **BEFORE, **c} for c in configs]
     keys = [k for k in configs[0] if k not in ("seed", "data", "device", "images") and len({json.dumps(c.get(k)) for c in configs}) > 1]
     return [", ".join(f"{k} {c.get(k)}" for k in keys) if keys else run.name for c, run in zip(configs, runs)]
 
