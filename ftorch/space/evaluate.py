@@ -7,6 +7,15 @@ to their orientation. Since steering is orthogonal, the normalised inner product
 vectors equals eq. 3.13's. Texture features (7.2.1) are matched against the texture grid points
 of their level in the same way. Boolean compounds combine their sub-feature values (3.5.2).
 
+A compound's texture parts (3.5 with 7.2.1) are sampled from the texture grid
+(``sampling.sample_texture``), and each multiplies the cosine of the oriented parts (eq. 3.13 over
+their vectors alone) by its Bhattacharyya coefficient, the dot product of the unit-normalised sampled
+and stored vectors, in [0, 1]. The two kinds live in different units (responses, a unit-length
+distribution), so one normalised dot product over both would weigh them arbitrarily; the product
+stays in [0, 1], is 1 at the compound's own reference point, and acts as a conjunction placed
+geometrically. A point where any part's sample is invalid does not count. A compound without texture
+parts is measured by the same arithmetic as before they existed.
+
 A :class:`~ftorch.space.features.Within` bounds the maximum to the reference points inside its
 regions (``ftorch.space.region``): a point outside counts as no applicable point, as an invalid
 sample does (cosine -1 before the per-image maximum), so an image with none inside gives value 0
@@ -27,7 +36,7 @@ from .features import Feature, LocalFeature, Texture, Within
 from .primitives import PartKind
 from .record import ImageRecords
 from .region import Region, inside
-from .sampling import Frames, placements, sample_unmasked, steered
+from .sampling import Frames, placements, sample_texture, sample_unmasked, steered
 from .texture import level_sigma
 
 
@@ -172,16 +181,26 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
     next(parts)  # the first part was matched at the reference points themselves
     frames = Frames.of(records, reference.image) if len(kinds) > 1 else None
+    tiny = torch.finfo(numerator.dtype).tiny
+    texture = None  # the product of the texture parts' Bhattacharyya coefficients (F, K)
     for i, (x, y, sigma, theta) in enumerate(parts, 1):
-        edgel = kinds[i] == PartKind.EDGEL
         # an invalid sample's cosine becomes -1 below, so its responses need not be zeroed first
-        sample, ok = sample_unmasked(records.pyramid, frames, x, y, sigma, edgel)
-        sample = steered(sample, theta, edgel)
-        numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
-        observed = observed + (sample**2).sum(-1)
+        if kinds[i] is PartKind.TEXTURE:
+            sample, ok = sample_texture(records, reference.image, x, y, sigma)
+            sample = sample / sample.norm(dim=-1, keepdim=True).clamp_min(tiny)
+            coefficient = torch.einsum("fkd,fd->fk", sample, vectors[i] / vectors[i].norm(dim=1, keepdim=True)).clamp(0, 1)
+            texture = coefficient if texture is None else texture * coefficient
+        else:
+            edgel = kinds[i] == PartKind.EDGEL
+            sample, ok = sample_unmasked(records.pyramid, frames, x, y, sigma, edgel)
+            sample = steered(sample, theta, edgel)
+            numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
+            observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok
-    pattern = sum((v**2).sum(1) for v in vectors)[:, None]
-    cosine = numerator / torch.sqrt(observed * pattern).clamp_min(torch.finfo(numerator.dtype).tiny)
+    pattern = sum((v**2).sum(1) for v, kind in zip(vectors, kinds) if kind is not PartKind.TEXTURE)[:, None]
+    cosine = numerator / torch.sqrt(observed * pattern).clamp_min(tiny)
+    if texture is not None:  # the oriented parts' cosine (eq. 3.13) times each texture part's coefficient
+        cosine = cosine * texture
     cosine = cosine.clamp_min(0) if valid is None else torch.where(valid, cosine.clamp_min(0), -1.0)
     if allowed is not None:  # a point outside the regions: no applicable point, as an invalid sample
         cosine = torch.where(allowed, cosine, -1.0)

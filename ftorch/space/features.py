@@ -2,7 +2,8 @@
 
 - :class:`Texel`: a 15-d texel response vector (3.4.2), canonical (steered to its own orientation).
 - :class:`Geometric`: n >= 2 primitive :class:`Part` s with attitudes phi_i, angle differences
-  dtheta_i, distances d_i (in units of sigma_{i-1}) and scale ratios dsigma_i (alg. 3.6).
+  dtheta_i, distances d_i (in units of sigma_{i-1}) and scale ratios dsigma_i (alg. 3.6); a part
+  may be a statistical texture placed relative to an oriented part (3.5 with 7.2.1).
 - :class:`Texture`: a statistical texture primitive (7.2.1), the intensity histogram around a
   point at a scale (``ftorch.space.texture``); it has no parts and no orientation.
 - :class:`Conjunction` (product) and :class:`Disjunction` (max) of any two features (3.5.2).
@@ -17,7 +18,8 @@ network links to it and the direction of those arcs (``components``, ``ARCS_TO_C
 registers its ``TYPE`` for :meth:`Feature.from_dict`.
 
 A part's vector is its response at its own location and scale, steered to its orientation:
-15 numbers for a texel, 2 for an edgel (the first-order pair, eq. 3.5). ``to_json`` /
+15 numbers for a texel, 2 for an edgel (the first-order pair, eq. 3.5); a texture part's is the
+square-rooted histogram there (``BINS`` numbers >= 0, no orientation). ``to_json`` /
 ``from_json`` round-trip every float exactly (Python writes the shortest exact repr).
 """
 from __future__ import annotations
@@ -45,6 +47,8 @@ def _vector(values, kind: PartKind) -> tuple[float, ...]:
         raise InputError(f"{kind} vector has NaN or infinite entries")
     if not any(vec):
         raise InputError(f"{kind} vector is all zeros: it matches nothing")
+    if kind is PartKind.TEXTURE and min(vec) < 0:
+        raise InputError(f"{kind} vector is a square-rooted histogram: it has a negative entry")
     return vec
 
 
@@ -61,7 +65,11 @@ class _CachedHash:
 
 @dataclass(frozen=True)
 class Part(_CachedHash):
-    """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3)."""
+    """One primitive of a local feature, placed relative to the previous part (alg. 3.6 step 3).
+
+    A texture part (3.5 with 7.2.1) has no orientation of its own: its dtheta must be 0, so the
+    orientation carried along the chain stays the previous part's, and a later part is placed from
+    the texture part's location and scale and that orientation."""
     __hash__ = _CachedHash.__hash__  # dataclass would replace an inherited one
 
     kind: PartKind
@@ -75,7 +83,7 @@ class Part(_CachedHash):
         try:
             object.__setattr__(self, "kind", PartKind(self.kind))
         except (ValueError, TypeError):
-            raise InputError(f"part kind must be 'texel' or 'edgel', got {self.kind!r}") from None
+            raise InputError(f"part kind must be 'texel', 'edgel' or 'texture', got {self.kind!r}") from None
         object.__setattr__(self, "vector", _vector(self.vector, self.kind))
         for name in ("phi", "dtheta", "d", "dsigma"):
             value = float(getattr(self, name))
@@ -84,6 +92,8 @@ class Part(_CachedHash):
             object.__setattr__(self, name, value)
         if self.d < 0 or self.dsigma <= 0:
             raise InputError(f"part needs d >= 0 and dsigma > 0, got d={self.d}, dsigma={self.dsigma}")
+        if self.kind is PartKind.TEXTURE and self.dtheta != 0:
+            raise InputError(f"a texture part has no orientation: its dtheta must be 0, got {self.dtheta}")
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "vector": list(self.vector), "phi": self.phi, "dtheta": self.dtheta,
@@ -213,6 +223,9 @@ class Geometric(LocalFeature):
         parts = tuple(self.parts)
         if len(parts) < 2 or not all(isinstance(p, Part) for p in parts):
             raise InputError(f"a geometric compound needs at least two Parts, got {len(parts)}")
+        if parts[0].kind is PartKind.TEXTURE:
+            raise InputError("a texture part cannot be a geometric compound's first part: it has no orientation to "
+                             "place the next part from (3.5 with 7.2.1: placed relative to an oriented part)")
         object.__setattr__(self, "parts", parts)
 
     def to_dict(self) -> dict:

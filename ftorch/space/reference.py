@@ -7,9 +7,11 @@ It shares nothing with the batched path but the records' pyramids and point list
 reference point is visited in a Python loop, alg. 3.6 is followed step by step in scalar
 math, responses are interpolated with ``scipy.ndimage.map_coordinates`` (order 1 in level,
 row, column), steered with the coefficients of eq. 3.8 written out, and eq. 3.13/3.14 applied.
-Textures are matched at their level's grid points one by one, and a region's test (the frames of
-``ftorch.space.region``: the image's own size, the lower medians of the salient points) is written
-out in scalar math.
+Textures are matched at their level's grid points one by one; a geometric compound's texture part
+(3.5 with 7.2.1) is interpolated between the grid points around it, found by scanning the lines of
+its level's grid, and multiplies the cosine of the oriented parts by its Bhattacharyya coefficient;
+a region's test (the frames of ``ftorch.space.region``: the image's own size, the lower medians of
+the salient points) is written out in scalar math.
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ from .kernels import kernel_radius
 from .primitives import EDGEL
 from .record import ImageRecords
 from .region import Frame, Region
+from .sampling import SPAN_TOLERANCE
+from .texture import FIRST_LEVEL
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
@@ -74,15 +78,66 @@ def _measure(pyramid: np.ndarray, x: float, y: float, sigma: float, theta: float
     return out
 
 
-def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: float, sigma: float, theta: float):
-    """Eq. 3.13 for one local feature at one reference point; None where a part falls outside."""
-    observed, pattern = [], []
+def texture_grid(records: ImageRecords, n: int) -> dict[int, dict[tuple[float, float], np.ndarray]]:
+    """Image ``n``'s texture grid point by point: {level: {(x, y): square-rooted histogram}}."""
+    grid: dict[int, dict] = {}
+    for q in range(records.grid_mask.shape[1]):
+        if bool(records.grid_mask[n, q]):
+            at = (float(records.grid_x[n, q]), float(records.grid_y[n, q]))
+            grid.setdefault(int(records.grid_level[n, q]), {})[at] = records.histograms[n, q].double().cpu().numpy()
+    return grid
+
+
+def _bracket(values: list[float], v: float, step: int) -> tuple[float, float, float] | None:
+    """The grid lines around ``v`` on one axis and the weight of the upper one; None outside their span
+    (by more than SPAN_TOLERANCE steps; nearer, ``v`` is moved onto it)."""
+    if not values[0] - SPAN_TOLERANCE * step <= v <= values[-1] + SPAN_TOLERANCE * step:
+        return None
+    v = min(max(v, values[0]), values[-1])
+    lower = max(line for line in values if line <= v)
+    upper = min((line for line in values if line > v), default=lower)
+    if upper == lower and len(values) > 1:  # on the last line: the cell below, upper weight 1
+        lower, upper = values[-2], values[-1]
+    return lower, upper, (v - lower) / step
+
+
+def _texture_sample(grid: dict, x: float, y: float, sigma: float) -> np.ndarray | None:
+    """A texture part's vector at (x, y, sigma): bilinear between the four grid points around
+    (x, y) at the level nearest sigma; None where that level or span has none."""
+    u = 2 * math.log2(sigma)
+    level = round(round(u) if abs(u - round(u)) < 1e-4 else u)
+    points = grid.get(level) if level >= FIRST_LEVEL else None
+    if not points:
+        return None
+    step = max(1, round(2 ** (level / 2)))
+    across = _bracket(sorted({px for px, _ in points}), x, step)
+    down = _bracket(sorted({py for _, py in points}), y, step)
+    if across is None or down is None:
+        return None
+    (x0, x1, wx), (y0, y1, wy) = across, down
+    return ((1 - wy) * ((1 - wx) * points[x0, y0] + wx * points[x1, y0])
+            + wy * ((1 - wx) * points[x0, y1] + wx * points[x1, y1]))
+
+
+def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: float, sigma: float, theta: float,
+                   grid: dict | None = None):
+    """Eq. 3.13 for one local feature at one reference point, times the Bhattacharyya coefficient
+    of each texture part (sampled from ``grid``, :func:`texture_grid`); None where a part falls outside."""
+    observed, pattern, coefficient = [], [], 1.0
     for i, part in enumerate(feature.parts):
         if i > 0:
             x += sigma * part.d * math.cos(theta + part.phi)
             y += sigma * part.d * math.sin(theta + part.phi)
             theta += part.dtheta
             sigma *= part.dsigma
+        if part.kind == "texture":
+            measured = _texture_sample(grid, x, y, sigma)
+            if measured is None:
+                return None
+            stored = np.array(part.vector)
+            cosine = float(measured @ stored) / (np.linalg.norm(measured) * np.linalg.norm(stored))
+            coefficient *= min(1.0, max(0.0, cosine))
+            continue
         measured = _measure(pyramid, x, y, sigma, theta, part.kind)
         if measured is None:
             return None
@@ -90,7 +145,7 @@ def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: floa
         pattern += list(part.vector)
     o, p = np.array(observed), np.array(pattern)
     norm = np.linalg.norm(o) * np.linalg.norm(p)
-    return max(0.0, float(o @ p / norm)) if norm > 0 else 0.0
+    return max(0.0, float(o @ p / norm)) * coefficient if norm > 0 else 0.0
 
 
 def _lower_median(values: list[float]) -> float:
@@ -145,6 +200,7 @@ def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tu
     height, width = (int(v) for v in records.sizes[n])
     pyramid = records[n].responses[0, :levels, :, :height, :width].double().cpu().numpy()
     want_edgel = feature.parts[0].kind == "edgel"
+    grid = texture_grid(records, n) if any(part.kind == "texture" for part in feature.parts) else None
     best = 0.0
     for p in range(records.mask.shape[1]):
         if not bool(records.mask[n, p]) or (int(records.kind[n, p]) == EDGEL) != want_edgel:
@@ -152,7 +208,7 @@ def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tu
         args = (float(records.x[n, p]), float(records.y[n, p]), float(records.sigma[n, p]), float(records.theta[n, p]))
         if not all(region_holds(r, records, n, *args[:2]) for r in regions):
             continue
-        value = local_value_at(feature, pyramid, *args)
+        value = local_value_at(feature, pyramid, *args, grid)
         if value is not None:
             best = max(best, value)
     return best

@@ -9,6 +9,9 @@ stored values exactly, so a feature measured from an image has value 1 at its ow
 point. Level indices within 1e-4 of an integer are snapped to it (float32 sigmas such as
 sqrt(2) would otherwise fall just outside a level). A sample is valid when (x, y) lies inside
 the image and the levels it reads exist.
+
+A texture part (3.5 with 7.2.1) is sampled from the texture grid instead (:func:`sample_texture`):
+at the level nearest sigma, bilinear between the four surrounding grid points of that level.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from torch import Tensor
 
 from .record import ImageRecords, Pyramid
 from .steering import rotate_pair, steer
+from .texture import FIRST_LEVEL, grid_step
 
 
 def level_index(sigma: Tensor) -> Tensor:
@@ -125,3 +129,82 @@ def _read(pyramid: Pyramid, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edg
         return ((1 - w) * pair[:, 0:2] + w * pair[:, 2:4]).view(*shape, 2)
     blocks = torch.cat([planar(pyramid.first, 8).view(-1, 4, 2), planar(pyramid.second, 12).view(-1, 4, 3)], -1)
     return ((1 - w[:, :, None]) * blocks[:, 0:3] + w[:, :, None] * blocks[:, 1:4]).view(*shape, 15)
+
+
+TEXTURE_GRID = "texture grid"  # its key among a records object's cached reference points
+SPAN_TOLERANCE = 1e-2  # grid steps: a texture sample this near the grid's span counts as on its edge
+
+
+class GridLayout(NamedTuple):
+    """Where each level's texture grid lies, per image and level (N, L), L = the most levels of any
+    image: its first point's index in the image's grid row (``offset``), its first column and row
+    (``x0``, ``y0``, as the records' float type), its numbers of columns and rows (0: none), and
+    per level (L,) the step between them (``ftorch.space.texture.grid_step``)."""
+
+    offset: Tensor
+    x0: Tensor
+    y0: Tensor
+    columns: Tensor
+    rows: Tensor
+    step: Tensor
+
+    @staticmethod
+    def of(records: ImageRecords) -> "GridLayout":
+        """The layout of the grid ``records`` hold (each level's points row by row, levels in turn,
+        as ``TextureGrid`` makes them), read from the grid itself, batched; found once per records
+        object (records are never changed in place)."""
+        known = records.reference_points
+        if TEXTURE_GRID not in known:
+            n, q = records.grid_x.shape
+            levels, device, dtype = max(1, int(records.levels.max())), records.device, records.dtype
+            mask = records.grid_mask
+            cell = (torch.arange(n, device=device)[:, None] * levels + records.grid_level.clamp(0, levels - 1))[mask]
+            index = torch.arange(q, device=device).expand(n, -1)[mask]
+            offset = torch.full((n * levels,), q, device=device).scatter_reduce(0, cell, index, "amin")
+
+            def extreme(field: Tensor, how: str) -> Tensor:
+                return field.new_zeros(n * levels).scatter_reduce(0, cell, field[mask], how, include_self=False)
+            step = torch.tensor([grid_step(k) for k in range(levels)], device=device, dtype=dtype)
+            x0, y0 = extreme(records.grid_x, "amin"), extreme(records.grid_y, "amin")
+            present = offset < q
+            columns = torch.where(present, torch.round((extreme(records.grid_x, "amax") - x0) / step.repeat(n)) + 1, 0)
+            rows = torch.where(present, torch.round((extreme(records.grid_y, "amax") - y0) / step.repeat(n)) + 1, 0)
+            known[TEXTURE_GRID] = GridLayout(*(t.view(n, levels) for t in (offset, x0, y0, columns.long(), rows.long())),
+                                             step)
+        return known[TEXTURE_GRID]
+
+
+def sample_texture(records: ImageRecords, image: Tensor, x: Tensor, y: Tensor, sigma: Tensor) -> tuple[Tensor, Tensor]:
+    """A texture part's square-rooted histogram at finite (x, y, sigma) of one shape (``image``
+    broadcasts to it): (..., BINS), and its validity (...) (alg. 3.6 step 4 for this kind).
+
+    The level is k = round(2*log2(sigma)) (:func:`level_index`); the sample is valid where
+    k >= ``FIRST_LEVEL``, the image has that level and (x, y) lies within the span of that level's
+    grid in that image (within ``SPAN_TOLERANCE`` steps, clamped onto it: float32 placements miss a
+    grid point on the edge by a few ulps). Its value is bilinear between the four surrounding grid
+    points' vectors (on the last row or column the cell below reads it with weight 1); an invalid
+    sample holds what its nearest cells give (finite), or zeros where the records hold no grid."""
+    grid = GridLayout.of(records)
+    shape = torch.broadcast_shapes(image.shape, x.shape, y.shape, sigma.shape)
+    image, x, y = image.expand(shape), x.expand(shape), y.expand(shape)
+    level = torch.round(level_index(sigma)).expand(shape)
+    k = level.long().clamp(0, grid.step.shape[0] - 1)
+    columns, rows = grid.columns[image, k], grid.rows[image, k]
+    fx = (x - grid.x0[image, k]) / grid.step[k]
+    fy = (y - grid.y0[image, k]) / grid.step[k]
+    valid = ((level >= FIRST_LEVEL) & (level < records.levels[image]) & (columns > 0)
+             & (fx >= -SPAN_TOLERANCE) & (fx <= columns - 1 + SPAN_TOLERANCE)
+             & (fy >= -SPAN_TOLERANCE) & (fy <= rows - 1 + SPAN_TOLERANCE))
+    if records.histograms.shape[1] == 0:
+        return x.new_zeros(*shape, records.histograms.shape[-1]), valid
+    last_column, last_row = (columns - 1).clamp_min(0), (rows - 1).clamp_min(0)
+    fx, fy = torch.minimum(fx.clamp_min(0), last_column), torch.minimum(fy.clamp_min(0), last_row)
+    j0, i0 = torch.minimum(fx.floor(), (columns - 2).clamp_min(0)), torch.minimum(fy.floor(), (rows - 2).clamp_min(0))
+    wx, wy = (fx - j0)[..., None], (fy - i0)[..., None]
+    j0, i0 = j0.long(), i0.long()
+    j1, i1 = torch.minimum(j0 + 1, last_column), torch.minimum(i0 + 1, last_row)
+    start, top = grid.offset[image, k], records.histograms.shape[1] - 1
+
+    def at(i: Tensor, j: Tensor) -> Tensor:
+        return records.histograms[image, (start + i * columns + j).clamp(0, top)]
+    return ((1 - wy) * ((1 - wx) * at(i0, j0) + wx * at(i0, j1)) + wy * ((1 - wx) * at(i1, j0) + wx * at(i1, j1))), valid

@@ -49,6 +49,11 @@ def sigma_level(sigma: float) -> int | None:
     return level if level >= FIRST_LEVEL and abs(level_sigma(level) - sigma) <= 1e-9 * sigma else None
 
 
+def grid_step(level: int) -> int:
+    """Pixels between the grid's rows and columns at a level: max(1, round(sigma))."""
+    return max(1, round(level_sigma(level)))
+
+
 def memberships(images: Tensor) -> Tensor:
     """(B, BINS, H, W): each pixel's weight in each soft bin, from images (B, H, W) in [0, 1];
     linear between the two nearest bin centres (b + 1/2) / BINS, all in the end bin beyond them."""
@@ -133,8 +138,7 @@ class TextureGrid:
         """(level, rows, columns) of the grid at each level that has points."""
         out = []
         for k in range(FIRST_LEVEL, levels):
-            sigma = level_sigma(k)
-            radius, step = kernel_radius(sigma, self.truncate), max(1, round(sigma))
+            radius, step = kernel_radius(level_sigma(k), self.truncate), grid_step(k)
             rows, cols = np.arange(radius, height - radius, step), np.arange(radius, width - radius, step)
             if len(rows) and len(cols):
                 out.append((k, rows, cols))
