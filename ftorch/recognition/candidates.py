@@ -7,7 +7,8 @@ statistical texture of 7.2.1 where added); 2b. (``regions``) a feature in use or
 bounded to a region around its strongest occurrence in the sample image (``localize``): the whole
 image first, as the thesis measures every feature, then narrower discs, general-to-specific (3.6);
 3. a geometric expansion of a local feature in use (or failed before) at its strongest occurrence
-in the sample image; 4. a conjunction and 5. a disjunction of two such features.
+in the sample image (its new part a salient point, or, where the texture primitive is among the
+``primitives``, a texture grid point half of the time: 3.5 with 7.2.1); 4. a conjunction and 5. a disjunction of two such features.
 
 A method's n_fgen candidates are drawn together when the method starts, from the pools as they
 stand then (features in use, failed candidates of earlier methods); the learner measures them in
@@ -158,8 +159,9 @@ class CandidateGenerator:
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
+            texture = Primitive.TEXTURE in self.primitives
             made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator,
-                                     located=self._occurrences(env, sample))
+                                     located=self._occurrences(env, sample), texture=texture)
                     for sample in (samples[k % len(samples)] for k in range(n))]
             made = [f for f in made if f is not None]
             self.sampled += len(made)

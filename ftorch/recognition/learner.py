@@ -46,7 +46,8 @@ Options for generalization beyond the thesis, held with the rest in :class:`~fto
 - ``primitives``: the kinds of new primitive alg. 4.10's method 2 samples, drawn uniformly:
   texels and edgel pairs (the thesis), and the statistical texture of 7.2.1 where added
   (``ftorch.space.texture``: the intensity distribution around a point, which faces and other
-  textured objects need and texels, normalised derivative responses, do not carry).
+  textured objects need and texels, normalised derivative responses, do not carry); with it,
+  method 3's geometric expansions may also add a texture part beside an oriented one (3.5 with 7.2.1).
 - ``calibrate`` (calibrated counting, cross-fitting): a node's cut-point and CPT are counted on
   the instances other than those its search selected it on, where enough remain
   (:mod:`ftorch.recognition.counting`), so that the networks trust a feature as much as it

@@ -57,7 +57,8 @@ class LearnerSettings(Settings):
                                       "informative feature is asked)", "BITS")
     primitives: tuple[Primitive, ...] = option(
         tuple(Primitive), f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
-        "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
+        "(texture: the statistical texture of 7.2.1, the intensity distribution, also as a part that geometric "
+        "expansions place beside an oriented part)", "LIST")
     regions: tuple[Frame, ...] = option(
         (), f"the frames in which a search bounds features to regions, general-to-specific: none, or a "
         f"comma-separated choice of {', '.join(Frame)} (none: a feature looks anywhere, as the thesis's)", "LIST")

@@ -1,6 +1,7 @@
 """Generating candidate features from a sample image (alg. 4.10, methods 2 and 3; the texture
-primitive of 7.2.1), and bounding a feature to a region around its strongest occurrence
-(:func:`localize`, general-to-specific as 3.6 orders the feature space).
+primitive of 7.2.1, alone or, where asked, as a part added by a geometric expansion, 3.5), and
+bounding a feature to a region around its strongest occurrence (:func:`localize`,
+general-to-specific as 3.6 orders the feature space).
 
 Every generated part is measured exactly as :func:`ftorch.space.evaluate.feature_values` measures
 it, so a feature sampled from an image has value 1 at its own reference point there.
@@ -21,7 +22,7 @@ from .features import Feature, Geometric, LocalFeature, Part, Texel, Texture, Wi
 from .primitives import PartKind
 from .record import ImageRecords
 from .region import Frame, Region, frame_coordinates
-from .sampling import placements, steered_sample
+from .sampling import placements, sample_texture, steered_sample
 from .texture import level_sigma
 
 
@@ -55,6 +56,19 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     image = torch.tensor([n], device=records.device)
     vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
     return Part(kind, vector[0].tolist(), phi, dtheta, d, dsigma)
+
+
+def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
+    """Part for texture grid point q placed relative to the previous part (3.5 with 7.2.1): phi, d,
+    dsigma measured as :func:`_relative_part` measures them, dtheta 0, its vector sampled there as
+    evaluation samples it (``sampling.sample_texture``)."""
+    x0, y0, s0, t0 = (float(v) for v in previous)
+    x1, y1 = float(records.grid_x[n, q]), float(records.grid_y[n, q])
+    phi, d = math.atan2(y1 - y0, x1 - x0) - t0, math.hypot(x1 - x0, y1 - y0) / s0
+    dsigma = level_sigma(int(records.grid_level[n, q])) / s0
+    _, (x, y, sigma, _) = placements(previous, [(phi, 0.0, d, dsigma)])
+    vector, _ = sample_texture(records, torch.tensor([n], device=records.device), x[None], y[None], sigma[None])
+    return Part(PartKind.TEXTURE, vector[0].tolist(), phi, 0.0, d, dsigma)
 
 
 def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
@@ -118,7 +132,8 @@ def _occurrence(feature: Feature, records: ImageRecords, n: int, located: dict |
 
 
 def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, generator: torch.Generator | None = None,
-                     max_distance: float | None = None, located: dict | None = None) -> Geometric | None:
+                     max_distance: float | None = None, located: dict | None = None,
+                     texture: bool = False) -> Geometric | None:
     """Method 3: add a random salient edgel or texel near the feature's strongest occurrence.
 
     The feature is located in image n by eq. 3.14 (:func:`strongest`; from ``located``, the
@@ -126,6 +141,10 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     there); its parts are placed there by alg. 3.6 and a salient point (edgel or texel) within
     ``max_distance`` pixels of the last part becomes the new last part. The existing parts keep
     their vectors, so the result is more specific.
+
+    With ``texture`` the new part's kind is drawn first, a salient point or a texture grid point
+    (3.5 with 7.2.1), one half each; a texture part is a grid point of any level in that reach
+    (:func:`_texture_part`). Without it, the draws are those made before texture parts existed.
     """
     if not isinstance(feature, LocalFeature):
         raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
@@ -133,13 +152,15 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     if occurrence is None:
         return None
     *_, state = placements(occurrence, feature.attitudes())
-    points = records.mask[n].nonzero()[:, 0]
-    distance = torch.hypot(records.x[n, points] - state[0], records.y[n, points] - state[1])
+    grid = texture and bool(torch.rand(1, generator=generator) < 0.5)
+    mask, x, y = (records.grid_mask, records.grid_x, records.grid_y) if grid else (records.mask, records.x, records.y)
+    points = mask[n].nonzero()[:, 0]
+    distance = torch.hypot(x[n, points] - state[0], y[n, points] - state[1])
     near = points[(distance >= 0.5) & (distance <= _default_distance(records, n, max_distance))].cpu()
     q = _choose(near, generator)
     if q is None:
         return None
-    return Geometric((*feature.parts, _relative_part(records, n, q, state)))
+    return Geometric((*feature.parts, (_texture_part if grid else _relative_part)(records, n, q, state)))
 
 
 def localize(feature: Feature, records: ImageRecords, n: int, frame: Frame | str, radius: float,
