@@ -6,9 +6,10 @@ else (no instance list, no value cache, no images). :func:`pack` writes exactly 
 - a header: ``uint16`` feature count, ``uint16`` network count;
 - the feature table, each feature once however many networks hold it, sub-features before their
   compounds: a ``uint8`` type code (:data:`CODES`), then
-  texel: its 15 ``float32``; geometric: ``uint8`` part count, per part a ``uint8`` kind and its
-  vector (15 or 2 ``float32``), and for every part after the first its placement phi, dtheta, d,
-  dsigma (4 ``float32``; the first part's is never used, alg. 3.6); texture: ``uint8`` level k
+  texel: its 15 ``float32``; geometric: ``uint8`` part count, per part a ``uint8`` kind
+  (:data:`KINDS`) and its vector (15, 2 or 8 ``float32`` for a texel, an edgel, a texture part),
+  and for every part after the first its placement phi, dtheta, d, dsigma (4 ``float32``; the
+  first part's is never used, alg. 3.6); texture: ``uint8`` level k
   (sigma = 2^(k/2)) and its 8 ``float32``; conjunction, disjunction: two ``uint16`` positions of
   their sub-features in the table; within (a feature bounded to a region, ``ftorch.space.region``):
   ``uint8`` frame code (:data:`FRAMES`), its x, y and radius (3 ``float32``) and the ``uint16``
@@ -36,7 +37,7 @@ from ..space.texture import BINS, level_sigma
 from .bayes import ClassNetwork
 
 CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4, Within: 5}
-KINDS = (PartKind.TEXEL, PartKind.EDGEL)  # a part kind's code is its position
+KINDS = (PartKind.TEXEL, PartKind.EDGEL, PartKind.TEXTURE)  # a part kind's code is its position
 FRAMES = (Frame.IMAGE, Frame.OBJECT)  # a region frame's code is its position
 LIMIT = 1 << 16  # features per table and nodes per network that a uint16 position can name
 
@@ -145,7 +146,10 @@ def _get_feature(source: _Reader, table: list[Feature]) -> Feature:
     if kind is Geometric:
         parts = []
         for k in range(source.get("B")[0]):
-            part = KINDS[source.get("B")[0]]
+            (code,) = source.get("B")
+            if code >= len(KINDS):
+                raise ValueError(f"part kind code {code} is not one of {list(range(len(KINDS)))}")
+            part = KINDS[code]
             vector = source.floats(part.size).tolist()
             parts.append(Part(part, vector, *(source.floats(4).tolist() if k else ())))
         return Geometric(tuple(parts))

@@ -7,9 +7,10 @@ sub-features of a Boolean compound by a dotted line, and an id beside the refere
 Edgels are segments of length 2*sigma along the edge (across the gradient) centred on the
 point; blobs are circles and corners squares of radius sigma, each with a line from the
 centre along its orientation; a texture (7.2.1, no orientation) is a dashed circle of radius
-2 sigma, its window's reach. A feature bounded to a region (``Within``) is drawn where it is
-strongest inside the region, with the region's outline, thin, in the feature's colour (a circle in
-the object frame, an ellipse in the image frame of a non-square image).
+2 sigma, its window's reach, and so is a texture part of a geometric compound. A feature bounded
+to a region (``Within``) is drawn where it is strongest inside the region, with the region's
+outline, thin, in the feature's colour (a circle in the object frame, an ellipse in the image
+frame of a non-square image).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from ..checkpoint import write_atomic
 from ..images import to_uint8
 from .evaluate import bounded_by, feature_values
 from .features import Feature, LocalFeature, Texture, Within
-from .primitives import BLOB, CORNER, EDGEL
+from .primitives import BLOB, CORNER, EDGEL, PartKind
 from .record import ImageRecords
 from .region import Region, pixel_ellipse
 from .sampling import placements
@@ -136,6 +137,15 @@ def _dotted(canvas, a, b, colour, step: float = 4.0) -> None:
               (a[0] + t1 * (b[0] - a[0]), a[1] + t1 * (b[1] - a[1])), colour)
 
 
+def _texture_ring(canvas, x: float, y: float, sigma: float, zoom: float, colour) -> tuple[float, float]:
+    """A texture's dashed circle of radius 2 sigma around (x, y); returns its centre (canvas coordinates)."""
+    centre, r = _centre(x, y, zoom), 2 * sigma * zoom
+    ring = [(centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 33)]
+    for a, b in zip(ring[0::2], ring[1::2]):
+        _line(canvas, a, b, colour, 2)
+    return centre
+
+
 def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour, outline=None,
                   regions: tuple[Region, ...] = ()) -> tuple[float, float] | None:
     """Draw one feature at its located reference point (inside the ``regions`` around it); returns
@@ -148,17 +158,16 @@ def _draw_located(canvas, feature: Feature, where: dict, zoom: float, colour, ou
     if not math.isfinite(x):
         return None
     if isinstance(feature, Texture):
-        centre, r = _centre(x, y, zoom), 2 * sigma * zoom
-        ring = [(centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 33)]
-        for a, b in zip(ring[0::2], ring[1::2]):
-            _line(canvas, a, b, colour, 2)
-        return centre
+        return _texture_ring(canvas, x, y, sigma, zoom, colour)
     if isinstance(feature, LocalFeature):
         start = tuple(torch.tensor(v, dtype=torch.float64) for v in (x, y, sigma, theta))
         previous = None
         for part, state in zip(feature.parts, placements(start, feature.attitudes())):
             px, py, ps, pt = (float(v) for v in state)
-            draw_marker(canvas, part.kind.codes[0], px, py, ps, pt, zoom, colour, 2)
+            if part.kind is PartKind.TEXTURE:  # a texture part (3.5 with 7.2.1), as a texture is drawn
+                _texture_ring(canvas, px, py, ps, zoom, colour)
+            else:
+                draw_marker(canvas, part.kind.codes[0], px, py, ps, pt, zoom, colour, 2)
             here = _centre(px, py, zoom)
             if previous is not None:
                 _line(canvas, previous, here, colour, 1)
