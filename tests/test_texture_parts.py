@@ -60,14 +60,14 @@ def expanded(records, make, kinds: str, count: int, seed: int = 0) -> list[tuple
 
 
 def hand_made(records, count: int, seed: int) -> list[Geometric]:
-    """A texel of image 0 and a texture part at random attitudes: many placements fall off the grid
-    or between levels, some on levels no image has."""
+    """A texel of image 0 and a texture part at random attitudes, its histogram scaled (only its
+    direction counts): many placements fall off the grid or between levels, some on levels no image has."""
     rng = np.random.default_rng(seed)
     points = records.texel_mask()[0].nonzero()[:, 0].tolist()
     out = []
     for _ in range(count):
         p = int(rng.choice(points))
-        histogram = records.histograms[int(rng.integers(len(records))), int(rng.integers(20))].tolist()
+        histogram = (rng.uniform(0.2, 5) * records.histograms[int(rng.integers(len(records))), int(rng.integers(20))]).tolist()
         out.append(Geometric((Part("texel", records.canonical[0, p].tolist()),
                               Part("texture", histogram, rng.uniform(-4, 4), 0.0, rng.uniform(0, 12), rng.uniform(0.4, 6)))))
     return out
