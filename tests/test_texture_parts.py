@@ -196,7 +196,7 @@ def test_an_expansion_draws_its_kind_first_and_a_texture_part_has_value_one_on_i
     assert {PartKind.TEXTURE, PartKind.TEXEL, PartKind.EDGEL} <= kinds
 
 
-def test_the_candidate_generator_allows_texture_parts_only_with_the_texture_primitive(records, monkeypatch):
+def test_the_candidate_generator_allows_texture_parts_only_where_asked(records, monkeypatch):
     calls = []
     monkeypatch.setattr(candidates_module, "expand_geometric", lambda *a, **k: calls.append(k["texture"]))
 
@@ -204,11 +204,14 @@ def test_the_candidate_generator_allows_texture_parts_only_with_the_texture_prim
         def record(self, _):
             return records[0]
     texel = random_texel(records, 0, torch.Generator().manual_seed(0))
-    for primitives, expected in (("texel,edgel", False), ("texel,edgel,texture", True), ("texture", True)):
+    for primitives, parts in (("texel,edgel", False), ("texel,edgel,texture", False), ("texel,edgel", True),
+                              ("texel,edgel,texture", True)):
         calls.clear()
-        CandidateGenerator(torch.Generator().manual_seed(0), primitives)(Method.EXPANSION, 3, {}, One(), [0], "a",
-                                                                          frozenset(), [texel])
-        assert calls == [expected] * 3
+        CandidateGenerator(torch.Generator().manual_seed(0), primitives, (), parts)(
+            Method.EXPANSION, 3, {}, One(), [0], "a", frozenset(), [texel])
+        assert calls == [parts] * 3
+    learner = DistinctiveFeatureLearner()
+    assert not learner.candidates.texture_parts and learner.set_params(texture_parts=True).candidates.texture_parts
 
 
 def test_refusals(records):
@@ -333,18 +336,20 @@ def corner_task(n: int, seed: int) -> tuple[list, list]:
 def test_a_learner_learns_which_side_of_the_corner_the_smooth_patch_lies():
     """Both classes hold the same square and both patches; only the side of the smooth patch relative to
     the corner differs (a mirror image), so neither a texture nor the corner separates them, and the
-    checkerboard is invisible to texels and edgels. With texture parts the learner (seed 0, contrast 4,
-    stage 0 and two expert stages) answers 40 test views nearly always right, its networks holding
-    compounds with a texture part; with textures alone it stays far below. (Measured on seeds 0-6:
-    accuracy .88-.98 and top-1 .98-1 with the three primitives, .66-.76 and .70-.80 with textures alone;
-    .44-.58 and .43-.50 with texels and edgels on seeds 0-2; with contrast 1, .89-.98 and .93-1 with
-    the three primitives.)"""
+    checkerboard is invisible to texels and edgels. With texture parts the learner (the defaults and
+    ``texture_parts``, seed 0, stage 0 and two expert stages) answers 40 test views nearly always right,
+    its networks holding compounds with a texture part; the same learner without them, and textures
+    alone, stay far below. (Measured on seeds 0-6: accuracy .88-.98 and top-1 .98-1 with texture parts,
+    .66-.76 and .70-.80 with textures alone; .44-.58 and .43-.50 with texels and edgels on seeds 0-2.)"""
     train, labels = corner_task(24, 0)
     test, truth = corner_task(40, 1)
-    learner = DistinctiveFeatureLearner(seed=0, primitives="texel,edgel,texture", contrast=4).fit(
-        train, labels, stages=2, max_cycles=10)
+    learner = DistinctiveFeatureLearner(seed=0, texture_parts=True).fit(train, labels, stages=2, max_cycles=10)
     assert learner.score(test, truth) >= 0.9 and learner.score(test, truth, "top-1") >= 0.95
     held = [f for net in learner.networks.values() for f in net.features]
     assert any(isinstance(f, Geometric) and any(p.kind is PartKind.TEXTURE for p in f.parts) for f in held)
-    alone = DistinctiveFeatureLearner(seed=0, primitives="texture", contrast=4).fit(train, labels, stages=2, max_cycles=10)
+    without = DistinctiveFeatureLearner(seed=0).fit(train, labels, stages=2, max_cycles=10)
+    assert without.score(test, truth) <= 0.8
+    assert not any(isinstance(f, Geometric) and any(p.kind is PartKind.TEXTURE for p in f.parts)
+                   for net in without.networks.values() for f in net.features)
+    alone = DistinctiveFeatureLearner(seed=0, primitives="texture").fit(train, labels, stages=2, max_cycles=10)
     assert alone.score(test, truth) <= 0.8

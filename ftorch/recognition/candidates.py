@@ -7,8 +7,8 @@ statistical texture of 7.2.1 where added); 2b. (``regions``) a feature in use or
 bounded to a region around its strongest occurrence in the sample image (``localize``): the whole
 image first, as the thesis measures every feature, then narrower discs, general-to-specific (3.6);
 3. a geometric expansion of a local feature in use (or failed before) at its strongest occurrence
-in the sample image (its new part a salient point, or, where the texture primitive is among the
-``primitives``, a texture grid point half of the time: 3.5 with 7.2.1); 4. a conjunction and 5. a disjunction of two such features.
+in the sample image (its new part a salient point, or, with ``texture_parts``, a texture grid
+point half of the time: 3.5 with 7.2.1); 4. a conjunction and 5. a disjunction of two such features.
 
 A method's n_fgen candidates are drawn together when the method starts, from the pools as they
 stand then (features in use, failed candidates of earlier methods); the learner measures them in
@@ -116,10 +116,11 @@ class CandidateGenerator:
     """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
     from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
 
-    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES, regions=()):
+    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES, regions=(), texture_parts: bool = False):
         self.generator = generator
         self.primitives = primitive_set(primitives)
         self.regions = frame_set(regions)
+        self.texture_parts = bool(texture_parts)
         self.sampled = 0
         # method 3's strongest occurrences (generate.strongest) by sample image and feature, for
         # one image set: a feature picked again on the same image is not measured again
@@ -159,9 +160,8 @@ class CandidateGenerator:
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
-            texture = Primitive.TEXTURE in self.primitives
             made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator,
-                                     located=self._occurrences(env, sample), texture=texture)
+                                     located=self._occurrences(env, sample), texture=self.texture_parts)
                     for sample in (samples[k % len(samples)] for k in range(n))]
             made = [f for f in made if f is not None]
             self.sampled += len(made)

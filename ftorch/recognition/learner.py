@@ -46,8 +46,9 @@ Options for generalization beyond the thesis, held with the rest in :class:`~fto
 - ``primitives``: the kinds of new primitive alg. 4.10's method 2 samples, drawn uniformly:
   texels and edgel pairs (the thesis), and the statistical texture of 7.2.1 where added
   (``ftorch.space.texture``: the intensity distribution around a point, which faces and other
-  textured objects need and texels, normalised derivative responses, do not carry); with it,
-  method 3's geometric expansions may also add a texture part beside an oriented one (3.5 with 7.2.1).
+  textured objects need and texels, normalised derivative responses, do not carry).
+- ``texture_parts``: method 3's geometric expansions may also add a texture part beside an
+  oriented one (3.5 with 7.2.1), so that "a smooth patch left of this corner" can be learned.
 - ``calibrate`` (calibrated counting, cross-fitting): a node's cut-point and CPT are counted on
   the instances other than those its search selected it on, where enough remain
   (:mod:`ftorch.recognition.counting`), so that the networks trust a feature as much as it
@@ -237,7 +238,8 @@ class DistinctiveFeatureLearner:
         self._plans: list[Plan] = []  # the networks' structures as alg. 4.4 indexes them, the latest first
         self._ahead: Ahead | None = None  # first recognitions of the presentations to come (:meth:`present`)
         self.counting = Counting(self.settings.calibrate)
-        self.candidates = CandidateGenerator(self.generator, self.settings.primitives, self.settings.regions)
+        self.candidates = CandidateGenerator(self.generator, self.settings.primitives, self.settings.regions,
+                                             self.settings.texture_parts)
         self.usage: dict = {}  # feature -> the last presentation whose training recognition queried it (alg. 5.3)
         self.presentations = 0
         self.trainable = True  # False once loaded from a recognition-only state
@@ -277,6 +279,7 @@ class DistinctiveFeatureLearner:
         self.counting.calibrate = self.settings.calibrate
         self.candidates.primitives = self.settings.primitives
         self.candidates.regions = self.settings.regions
+        self.candidates.texture_parts = self.settings.texture_parts
         return self
 
     def _check_fitted(self) -> None:

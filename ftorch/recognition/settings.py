@@ -57,8 +57,7 @@ class LearnerSettings(Settings):
                                       "informative feature is asked)", "BITS")
     primitives: tuple[Primitive, ...] = option(
         tuple(Primitive), f"the new primitives alg. 4.10 samples, a comma-separated choice of {', '.join(Primitive)} "
-        "(texture: the statistical texture of 7.2.1, the intensity distribution, also as a part that geometric "
-        "expansions place beside an oriented part)", "LIST")
+        "(texture: the statistical texture of 7.2.1, the intensity distribution)", "LIST")
     regions: tuple[Frame, ...] = option(
         (), f"the frames in which a search bounds features to regions, general-to-specific: none, or a "
         f"comma-separated choice of {', '.join(Frame)} (none: a feature looks anywhere, as the thesis's)", "LIST")
@@ -66,6 +65,8 @@ class LearnerSettings(Settings):
                            "that sample images from the misrecognized or sample image and the class's other examples "
                            "in turn, and tries the n_fgen most distinctive on the search's images first (1: alg. 4.10 "
                            "as printed)", "N", at_least=1, at_most=100, what="a factor")
+    texture_parts: bool = option(False, "geometric expansions (alg. 4.10 method 3) may add a statistical texture "
+                                 "part beside an oriented part, half of the time (3.5 with 7.2.1)")
     calibrate: bool = option(False, "calibrated counting: count each node's cut-point and CPT on the training "
                              "views other than those its search selected it on, where enough remain (cross-fitting)")
 
@@ -83,9 +84,10 @@ class LearnerSettings(Settings):
                     f"[{low:g}, {high:g})"
                 raise InputError(f"{name} must lie in {bound}, got {value}")
             object.__setattr__(self, name, value)
-        if not isinstance(self.calibrate, (bool, np.bool_)):
-            raise InputError(f"calibrate must be True or False, got {self.calibrate!r}")
-        object.__setattr__(self, "calibrate", bool(self.calibrate))
+        for name in ("texture_parts", "calibrate"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
         try:
             object.__setattr__(self, "evidence", Evidence(self.evidence))
         except ValueError:

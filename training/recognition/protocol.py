@@ -81,7 +81,8 @@ def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recogni
 
 
 # what a run written before an option existed ran with (the option's value then, not its default now)
-BEFORE = {"leak": 0.0, "primitives": "texel,edgel", "calibrate": False, "dynamic": False, "regions": "", "contrast": 1}
+BEFORE = {"leak": 0.0, "primitives": "texel,edgel", "calibrate": False, "dynamic": False, "regions": "", "contrast": 1,
+          "texture_parts": False}
 
 
 @dataclass(frozen=True)
