@@ -231,12 +231,14 @@ def test_a_log_folder_holding_another_runs_tensorboard_runs_is_refused(tmp_path,
 # -- 5. feature values invariant to I -> a*I + b -----------------------------------------------------
 @pytest.fixture(scope="module")
 def plym_learner():
-    """A learner of three built-in Plym solids (data not used to choose MIN_LEVELS) and its test views."""
+    """A learner of three built-in Plym solids (data not used to choose MIN_LEVELS) and its test views,
+    with the primitives whose values are invariant to I -> a*I + b (3.4.4): texels and edgels. The
+    intensity texture (7.2.1, in the defaults) describes intensities in [0, 1] and is not."""
     from training.data.datasets import load_task
     task = load_task("plym", classes=3, views=8, size=40)
     train, test = task.fold(1)
-    learner = DistinctiveFeatureLearner(seed=0).fit([task.view(i) for i in train], [task.labels[i] for i in train],
-                                                    stages=0, max_cycles=6)
+    learner = DistinctiveFeatureLearner(seed=0, primitives="texel,edgel").fit(
+        [task.view(i) for i in train], [task.labels[i] for i in train], stages=0, max_cycles=6)
     views = [task.view(i).double() for i in test]
     return learner, views, learner.predict_proba(views)
 

@@ -24,6 +24,7 @@ from ftorch.space.reference import local_value_at, reference_values, region_hold
 from ftorch.space.region import frame_coordinates, inside, object_frames, pixel_ellipse
 
 from .conftest import random_image
+from .test_tradeoff import rounded
 
 
 @pytest.fixture(scope="module")
@@ -230,19 +231,8 @@ def test_values_without_regions_are_the_same_bits_beside_bounded_features(record
         assert torch.equal(a.nan_to_num(-7), b[: len(plain)].nan_to_num(-7))
 
 
-def _float32(feature: Feature) -> Feature:
-    """The feature with every number rounded to float32 (what a packing stores), through its JSON form."""
-    def walk(x):
-        if isinstance(x, float):
-            return float(np.float32(x))
-        if isinstance(x, list):
-            return [walk(v) for v in x]
-        return {k: walk(v) for k, v in x.items()} if isinstance(x, dict) else x
-    return Feature.from_dict(walk(feature.to_dict()))
-
-
 def test_packing_round_trip_recognizes_the_same(records):
-    features = [_float32(f) for f in compositions(records)]
+    features = [rounded(f) for f in compositions(records)]
     rng = np.random.default_rng(0)
 
     def cpt(parents: int) -> np.ndarray:

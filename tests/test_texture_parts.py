@@ -27,6 +27,7 @@ from ftorch.space.sampling import SPAN_TOLERANCE, GridLayout, placements, sample
 from ftorch.space.texture import BINS, FIRST_LEVEL, TextureGrid, grid_step, level_sigma
 
 from .conftest import random_image
+from .test_tradeoff import rounded
 
 
 @pytest.fixture(scope="module")
@@ -246,16 +247,6 @@ def test_json_round_trip_is_exact(records):
     assert feature.to_dict()["parts"][1]["kind"] == "texture" and feature.to_dict()["parts"][1]["dtheta"] == 0.0
 
 
-def _float32(feature: Feature) -> Feature:
-    def walk(x):
-        if isinstance(x, float):
-            return float(np.float32(x))
-        if isinstance(x, list):
-            return [walk(v) for v in x]
-        return {k: walk(v) for k, v in x.items()} if isinstance(x, dict) else x
-    return Feature.from_dict(walk(feature.to_dict()))
-
-
 def test_packing_round_trip_and_byte_count(records):
     """Kind code 2 and BINS float32 per texture part; unpacking gives the float32 features, which pack
     to the same bytes; a kind code beyond KINDS is refused."""
@@ -266,7 +257,7 @@ def test_packing_round_trip_and_byte_count(records):
                           [np.array([[0.7, 0.3], [0.2, 0.8]]), np.full((2, 2, 2), 0.5)])
     data = pack({"a": net})
     back = unpack(data, ["a"])["a"]
-    assert back.features == (_float32(two), _float32(three)) and pack({"a": back}) == data
+    assert back.features == (rounded(two), rounded(three)) and pack({"a": back}) == data
 
     def size(f):
         return 2 + sum(1 + 4 * len(p.vector) + 16 * (k > 0) for k, p in enumerate(f.parts))
