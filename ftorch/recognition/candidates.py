@@ -148,11 +148,8 @@ class CandidateGenerator:
             return [pick(pool, generator) for _ in range(n)] if pool else []
         if method is Method.PRIMITIVE:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
             kinds = self.primitives
-            made = [_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](
-                env.record(samples[k % len(samples)]), 0, generator) for k in range(n)]
-            made = [f for f in made if f is not None]
-            self.sampled += len(made)
-            return made
+            return self._sampled([_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](
+                env.record(samples[k % len(samples)]), 0, generator) for k in range(n)])
         pool = in_use(networks) + failed
         if method is Method.REGION:
             return self._regions(n, pool, env, samples) if self.regions and pool else []
@@ -160,12 +157,9 @@ class CandidateGenerator:
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
-            made = [expand_geometric(pick(local, generator), env.record(sample), 0, generator,
-                                     located=self._occurrences(env, sample), texture=self.texture_parts)
-                    for sample in (samples[k % len(samples)] for k in range(n))]
-            made = [f for f in made if f is not None]
-            self.sampled += len(made)
-            return made
+            return self._sampled([expand_geometric(pick(local, generator), env.record(sample), 0, generator,
+                                                   located=self._occurrences(env, sample), texture=self.texture_parts)
+                                  for sample in (samples[k % len(samples)] for k in range(n))])
         if len(pool) < 2:
             return []
         kind = Conjunction if method is Method.CONJUNCTION else Disjunction
@@ -187,6 +181,10 @@ class CandidateGenerator:
             sample = samples[k % len(samples)]
             if radius is not None:
                 made.append(localize(feature, env.record(sample), 0, frame, radius, self._occurrences(env, sample)))
+        return self._sampled(made)
+
+    def _sampled(self, made: list) -> list:
+        """The features an image gave (None: it offered no suitable point), counted in :attr:`sampled`."""
         made = [f for f in made if f is not None]
         self.sampled += len(made)
         return made

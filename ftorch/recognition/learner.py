@@ -614,8 +614,9 @@ class DistinctiveFeatureLearner:
         drawn = list(zip(candidates, cuts, powers))
         if self.settings.contrast == 1:
             return drawn
-        weak = [item for item in drawn if item[2] <= 0 or item[2] < t_ksd]
-        strong = [item for item in drawn if not (item[2] <= 0 or item[2] < t_ksd)]
+        fails = [power <= 0 or power < t_ksd for _, _, power in drawn]
+        weak = [item for item, failing in zip(drawn, fails) if failing]
+        strong = [item for item, failing in zip(drawn, fails) if not failing]
         return weak + sorted(strong, key=lambda item: -item[2])[:self.settings.n_fgen]
 
     # -- state ---------------------------------------------------------------------------------

@@ -45,30 +45,32 @@ def _part_kind(records: ImageRecords, n: int, p: int) -> PartKind:
     return PartKind.of_point(int(records.kind[n, p]))
 
 
+def _attitude(previous: tuple[Tensor, ...], x1: float, y1: float, s1: float, t1: float) -> tuple[float, ...]:
+    """(phi, dtheta, d, dsigma) of a part at (x1, y1, s1, t1) relative to the previous part (x, y,
+    sigma, theta): alg. 3.6 step 3 read backwards."""
+    x0, y0, s0, t0 = (float(v) for v in previous)
+    return math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0, math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
+
+
 def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
     """Part for salient point q placed relative to the previous part (x, y, sigma, theta)."""
-    x0, y0, s0, t0 = (float(v) for v in previous)
-    x1, y1, s1, t1 = (float(v) for v in _point(records, n, q))
     kind = _part_kind(records, n, q)
-    phi, dtheta = math.atan2(y1 - y0, x1 - x0) - t0, t1 - t0
-    d, dsigma = math.hypot(x1 - x0, y1 - y0) / s0, s1 / s0
-    _, (x, y, sigma, theta) = placements(previous, [(phi, dtheta, d, dsigma)])
+    attitude = _attitude(previous, *(float(v) for v in _point(records, n, q)))
+    _, (x, y, sigma, theta) = placements(previous, [attitude])
     image = torch.tensor([n], device=records.device)
     vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
-    return Part(kind, vector[0].tolist(), phi, dtheta, d, dsigma)
+    return Part(kind, vector[0].tolist(), *attitude)
 
 
 def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
-    """Part for texture grid point q placed relative to the previous part (3.5 with 7.2.1): phi, d,
-    dsigma measured as :func:`_relative_part` measures them, dtheta 0, its vector sampled there as
-    evaluation samples it (``sampling.sample_texture``)."""
-    x0, y0, s0, t0 = (float(v) for v in previous)
-    x1, y1 = float(records.grid_x[n, q]), float(records.grid_y[n, q])
-    phi, d = math.atan2(y1 - y0, x1 - x0) - t0, math.hypot(x1 - x0, y1 - y0) / s0
-    dsigma = level_sigma(int(records.grid_level[n, q])) / s0
-    _, (x, y, sigma, _) = placements(previous, [(phi, 0.0, d, dsigma)])
+    """Part for texture grid point q placed relative to the previous part (3.5 with 7.2.1), as
+    :func:`_relative_part` places a salient point, with the previous orientation (dtheta 0), its
+    vector sampled there as evaluation samples it (``sampling.sample_texture``)."""
+    attitude = _attitude(previous, float(records.grid_x[n, q]), float(records.grid_y[n, q]),
+                         level_sigma(int(records.grid_level[n, q])), float(previous[3]))
+    _, (x, y, sigma, _) = placements(previous, [attitude])
     vector, _ = sample_texture(records, torch.tensor([n], device=records.device), x[None], y[None], sigma[None])
-    return Part(PartKind.TEXTURE, vector[0].tolist(), phi, 0.0, d, dsigma)
+    return Part(PartKind.TEXTURE, vector[0].tolist(), *attitude)
 
 
 def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
