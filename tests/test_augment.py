@@ -103,7 +103,7 @@ class _Recorder:
 
     def learn(self, env, image, t_ksd):
         from ftorch.recognition.inference import Recognition, Result
-        from ftorch.recognition.learner import Presentation
+        from ftorch.recognition.learning import Presentation
 
         self.shown.append(image)
         self.presentations += 1
@@ -115,10 +115,10 @@ class _Recorder:
     def discard_unused(self, since):
         return []
 
-    def _recognize_many(self, env, images, information=None):  # learning's judging recognitions (no top label)
+    def recognitions(self, env, images, threshold, top=False):  # learning's judging recognitions (no top label)
         from ftorch.recognition.inference import Recognition
 
-        self.judged.append((list(images), information))
+        self.judged.append((list(images), threshold))
         return [Recognition({}, set(env.labels[i]) if i in self.right else set()) for i in images]
 
 

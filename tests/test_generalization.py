@@ -7,11 +7,12 @@ import torch
 from ftorch.errors import InputError
 from ftorch.ksd import distinctive_at, ksd
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import Method, Primitive
+from ftorch.recognition.candidates import Method
 from ftorch.recognition.counting import Counting
 from ftorch.recognition.inference import Recognition, recognize, residual_entropy
 from ftorch.recognition.learner import DistinctiveFeatureLearner
-from ftorch.recognition.settings import LearnerSettings
+from ftorch.recognition.learning import Search
+from ftorch.recognition.settings import LearnerSettings, Primitive
 
 from .test_learner import shapes  # noqa: F401  (fixture)
 from .test_recognition import two_class_networks
@@ -36,12 +37,12 @@ def _search(env, rounds: int, succeed_at: int | None, monkeypatch) -> tuple[bool
     generate = learner.candidates
     monkeypatch.setattr(learner, "candidates", lambda method, *a: calls.append(method) or generate(method, *a))
 
-    def power(label, features, cut_position, against=None):
+    def power(label, features, settings, against=None):
         first = len(tried)
         tried.extend(features)
         return np.zeros(len(features)), np.array([float(first + j == succeed_at) for j in range(len(features))])
     monkeypatch.setattr(learner.counting, "discretize", power)
-    found = learner._search(env, 0, 0, frozenset({1}), True, 0.5, lambda rec: True)
+    found = learner._search(env, 0, Search(0, frozenset({1}), True), 0.5, lambda rec: True)
     if found:  # the successful candidate, and no other of those discretized, joined class 0's network
         assert [f for f in tried if f in learner.networks[0]] == [tried[succeed_at]]
     return found, calls, tried
@@ -171,12 +172,12 @@ def test_a_leak_mixes_every_cpt_entry_with_its_complement_and_keeps_one_miss_fro
     assert net.inference.posterior({"f": 0, "g": 1}) > 0.05  # with the leak, g's presence still speaks for A
 
 
-def _calibration_case(calibrate: bool, selected: set) -> tuple[Counting, ClassNetwork, np.ndarray, np.ndarray]:
+def _calibration_case(selected: set) -> tuple[Counting, ClassNetwork, np.ndarray, np.ndarray]:
     """Ten instances, 0-4 of A and 5-9 of B, and one node f of A at threshold 0.5 selected on ``selected``:
     on 0, 1, 5, 6 f separates A from B perfectly, on the others it fires as often on B as on A."""
     values = np.array([0.9, 0.8, 0.7, 0.2, 0.6, 0.1, 0.3, 0.8, 0.55, 0.4])
     present = np.arange(10) < 5
-    counting = Counting(calibrate)
+    counting = Counting()
     for i in range(10):
         counting.instances.add(i, {"A" if present[i] else "B"})
     counting.instances.set_block(list(range(10)), ["f"], values[None])
@@ -199,19 +200,20 @@ def test_calibrated_counting_leaves_a_nodes_selection_images_out_where_enough_re
     selected = {0, 1, 5, 6}
     held = [i for i in range(10) if i not in selected]
     for calibrate, rows in ((True, held), (False, list(range(10)))):
-        counting, net, values, present = _calibration_case(calibrate, selected)
-        counting.estimate(net, pseudocount=1.0)
+        counting, net, values, present = _calibration_case(selected)
+        settings = LearnerSettings.thesis(pseudocount=1.0, calibrate=calibrate)
+        counting.estimate(net, settings)
         assert np.allclose(net.cpt["f"], _counted_on(values, present, rows, 0.5, 1.0))
         assert np.allclose(net.prior, [0.5, 0.5])  # the prior counts every instance
-        cuts, powers = counting.discretize("A", ["f"], 0.5)
+        cuts, powers = counting.discretize("A", ["f"], settings)
         expected = ksd(torch.from_numpy(values[rows][None]), torch.from_numpy(present[rows]),
                        torch.from_numpy(~present[rows]))
         assert np.allclose(cuts, expected.cutpoint.numpy()) and np.allclose(powers, expected.distinctive.numpy())
     # the case tells the two apart: held out, f fires on B as often as on A
     assert not np.allclose(_counted_on(values, present, held, 0.5, 1.0), _counted_on(values, present, range(10), 0.5, 1.0))
     # only one instance of A outside the selection images: not enough to count on, so all count
-    counting, net, values, present = _calibration_case(True, {0, 1, 2, 3, 5})
-    counting.estimate(net, pseudocount=1.0)
+    counting, net, values, present = _calibration_case({0, 1, 2, 3, 5})
+    counting.estimate(net, LearnerSettings.thesis(pseudocount=1.0, calibrate=True))
     assert np.allclose(net.cpt["f"], _counted_on(values, present, list(range(10)), 0.5, 1.0))
 
 
@@ -225,9 +227,9 @@ def test_a_calibrated_learner_records_saves_and_checks_each_nodes_selection_imag
     state = learner.state_dict()
     copy = DistinctiveFeatureLearner.thesis()
     copy.load_state_dict(state)
-    assert copy.settings.calibrate and copy.counting.calibrate and copy.counting.selected == selected
+    assert copy.settings.calibrate and copy.counting.selected == selected
     for net in learner.networks.values():
-        copy.counting.estimate(copy.networks[net.label], copy.settings.pseudocount)
+        copy.counting.estimate(copy.networks[net.label], copy.settings)
         assert all(np.array_equal(copy.networks[net.label].cpt[f], net.cpt[f]) for f in net.features)
     state["selected"][0][2] = [10**6]
     with pytest.raises(ValueError, match="not an instance"):

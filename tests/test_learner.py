@@ -162,7 +162,7 @@ def test_presenting_in_blocks_equals_presenting_one_by_one(shapes, t_ksd, block_
     called image by image leaves: the same presentations, networks, instances, value cache and
     generator, through stage-0 and expert cycles, with blocks recognized image by image or as
     blocks (``BLOCK_MIN``); and blocks were used."""
-    import ftorch.recognition.learner as module
+    import ftorch.recognition.recognizer as module
 
     monkeypatch.setattr(module, "BLOCK_MIN", block_min)
 
@@ -289,7 +289,7 @@ def test_discard_unused_removes_features_and_recounts(shapes):
     assert all(f not in learner.instances.features and f not in learner.usage for f in dropped)
     for label, net in learner.networks.items():  # re-counted: the CPTs are those a fresh estimate gives
         tables = {f: net.cpt[f].copy() for f in net.features}
-        learner.counting.estimate(learner.networks[label], learner.settings.pseudocount)
+        learner.counting.estimate(learner.networks[label], learner.settings)
         assert all(np.array_equal(tables[f], net.cpt[f]) for f in net.features)
 
 
@@ -352,7 +352,7 @@ def test_expert_features_meet_the_ksd_target(shapes):
             assert p.entropy[c] > 0 and p.ksd < 0.9 and (c in shapes.labels[i]) != (d in shapes.labels[i])
         if p.result == "expert":
             (new,) = set(learner.networks[p.pair[0]].features) - before[p.pair[0]]
-            assert learner.counting.discretize(p.pair[0], [new], learner.settings.cut_position)[1][0] >= 0.9
+            assert learner.counting.discretize(p.pair[0], [new], learner.settings)[1][0] >= 0.9
             assert learner.discriminates[(p.pair[0], new)] == {p.pair[1]}
             accepted += 1
     assert accepted > 0
@@ -403,7 +403,7 @@ def test_learning_stops_at_min_information_and_answers_at_test_information(shape
     state = full.state_dict()
     first = full.learn(shapes, 0).recognition  # a recognition inside learning
     assert first.queried == short.recognize(shapes, 0).queried
-    del state["test_information"]
+    del state["test_information"], state["schema"]  # a file of schema 0, written before the option existed
     old = DistinctiveFeatureLearner.thesis()
     old.load_state_dict(state)
     assert old.settings.test_information == 0.3 and old.settings == short.settings

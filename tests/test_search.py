@@ -6,9 +6,10 @@ import torch
 
 from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import RADII, CandidateGenerator, Method, frame_set, narrowed
+from ftorch.recognition.candidates import RADII, CandidateGenerator, Method, narrowed
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.settings import LearnerSettings, frame_set
 from ftorch.recognition.stages import REPEATED, FailedSearch, Stage, repeated
 from ftorch.space.features import Texel, Within
 from ftorch.space.generate import random_texel
@@ -53,13 +54,13 @@ def _watched(learner, monkeypatch):
     calls, added = [], []
     generate, discretize = learner.candidates, learner.counting.discretize
 
-    def candidates(method, n, networks, env, samples, char, disc, failed):
-        made = generate(method, n, networks, env, samples, char, disc, failed)
+    def candidates(method, n, settings, networks, env, samples, char, disc, failed):
+        made = generate(method, n, settings, networks, env, samples, char, disc, failed)
         calls.append({"method": method, "n": n, "samples": list(samples), "powers": {}})
         return made
 
-    def powers(label, features, cut_position, against=None):
-        cuts, power = discretize(label, features, cut_position, against)
+    def powers(label, features, settings, against=None):
+        cuts, power = discretize(label, features, settings, against)
         if against is not None and calls:  # the search's call (reestimation passes no classes)
             calls[-1]["powers"].update(zip(features, power.tolist()))
         return cuts, power
@@ -120,10 +121,10 @@ def test_method_2b_bounds_features_where_they_are_strongest_on_the_sample_image(
     networks = {c: ClassNetwork(c) for c in range(3)}
     pool = [f for f in (random_texel(shapes_env.record(i), 0, torch.Generator().manual_seed(i)) for i in range(6)) if f]
     off = CandidateGenerator(torch.Generator().manual_seed(0))
-    assert off(Method.REGION, 10, networks, shapes_env, [4], 1, frozenset({2}), pool) == []
+    assert off(Method.REGION, 10, LearnerSettings.thesis(), networks, shapes_env, [4], 1, frozenset({2}), pool) == []
     assert torch.equal(off.generator.get_state(), torch.Generator().manual_seed(0).get_state())  # nothing drawn
-    on = CandidateGenerator(torch.Generator().manual_seed(0), regions="image,object")
-    made = on(Method.REGION, 30, networks, shapes_env, [4, 7], 1, frozenset({2}), pool)
+    on, regions = CandidateGenerator(torch.Generator().manual_seed(0)), LearnerSettings.thesis(regions="image,object")
+    made = on(Method.REGION, 30, regions, networks, shapes_env, [4, 7], 1, frozenset({2}), pool)
     assert len(made) > 20 and on.sampled == len(made) and {f.region.frame for f in made} == set(Frame)
     assert all(isinstance(f, Within) and f.feature in pool and f.region.radius == RADII[f.region.frame][0]
                for f in made)
@@ -131,7 +132,7 @@ def test_method_2b_bounds_features_where_they_are_strongest_on_the_sample_image(
         sample = [4, 7][k % 2] if len(made) == 30 else None
         if sample is not None:
             assert np.allclose(shapes_env.values([f], [sample]), shapes_env.values([f.feature], [sample]))
-    again = on(Method.REGION, 30, networks, shapes_env, [4], 1, frozenset({2}), made)
+    again = on(Method.REGION, 30, regions, networks, shapes_env, [4], 1, frozenset({2}), made)
     assert any(f.region.radius == RADII[f.region.frame][0] / 2 for f in again)  # narrowed where picked again
 
 

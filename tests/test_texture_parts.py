@@ -16,6 +16,7 @@ from ftorch.recognition.bayes import ClassNetwork, compound_arcs
 from ftorch.recognition.candidates import CandidateGenerator, Method
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import KINDS, pack, unpack
+from ftorch.recognition.settings import LearnerSettings
 from ftorch.space.draw import PALETTE, _centre, draw_features
 from ftorch.space.evaluate import feature_values, values_only
 from ftorch.space.features import Feature, Geometric, Part, Texel
@@ -208,11 +209,12 @@ def test_the_candidate_generator_allows_texture_parts_only_where_asked(records, 
     for primitives, parts in (("texel,edgel", False), ("texel,edgel,texture", False), ("texel,edgel", True),
                               ("texel,edgel,texture", True)):
         calls.clear()
-        CandidateGenerator(torch.Generator().manual_seed(0), primitives, (), parts)(
-            Method.EXPANSION, 3, {}, One(), [0], "a", frozenset(), [texel])
+        CandidateGenerator(torch.Generator().manual_seed(0))(
+            Method.EXPANSION, 3, LearnerSettings.thesis(primitives=primitives, texture_parts=parts), {}, One(), [0], "a",
+            frozenset(), [texel])
         assert calls == [parts] * 3
     learner = DistinctiveFeatureLearner()
-    assert not learner.candidates.texture_parts and learner.set_params(texture_parts=True).candidates.texture_parts
+    assert not learner.settings.texture_parts and learner.set_params(texture_parts=True).settings.texture_parts
 
 
 def test_refusals(records):

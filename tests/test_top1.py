@@ -15,7 +15,7 @@ from scipy.special import logsumexp
 from ftorch import Answer, DistinctiveFeatureLearner, FeatureSpace, ImageSet, InputError, LearnerSettings
 from ftorch.recognition.bayes import CLASS, ClassNetwork
 from ftorch.recognition.inference import Outcome, Plan, Recognition, outcome, recognize, recognize_block, top_class
-from ftorch.recognition.learner import BLOCK_MIN
+from ftorch.recognition.recognizer import BLOCK_MIN
 from training import run
 from training.data.datasets import load_task, plym_task
 from training.plots import curves_figure, figure_rgb

@@ -5,7 +5,8 @@ from .bayes import ClassNetwork
 from .environment import ImageSet
 from .explain import Explanation
 from .inference import Answer, Outcome, Recognition, Result, accuracy, outcome, recognize, top1_accuracy, top_class
-from .learner import DistinctiveFeatureLearner, Presentation
+from .learner import DistinctiveFeatureLearner
+from .learning import Presentation
 from .settings import Evidence, LearnerSettings
 from .stages import ClassAdded, Cycle, Schedule, Stage
 

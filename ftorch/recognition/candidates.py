@@ -22,12 +22,12 @@ from enum import StrEnum
 
 import torch
 
-from ..errors import InputError
 from ..space.features import Conjunction, Disjunction, LocalFeature, Within
 from ..space.generate import expand_geometric, localize, random_edgel_pair, random_texel, random_texture
 from ..space.region import Frame
 from .bayes import ClassNetwork
 from .environment import ImageSet
+from .settings import LearnerSettings, Primitive
 
 
 class Method(StrEnum):
@@ -42,51 +42,12 @@ class Method(StrEnum):
 
 
 METHODS = tuple(Method)
-
-
-class Primitive(StrEnum):
-    """The kinds of new primitive that method 2 samples, in the order its draw indexes them."""
-
-    TEXEL = "texel"
-    EDGEL = "edgel"  # a geometric compound of two edgels
-    TEXTURE = "texture"  # 7.2.1
-
-
-THESIS_PRIMITIVES = (Primitive.TEXEL, Primitive.EDGEL)
 _SAMPLERS = {Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
-
-
-def primitive_set(value) -> tuple[Primitive, ...]:
-    """The primitives named by ``value`` (a comma-separated string or a sequence of names), in
-    :class:`Primitive` order, so that a set names one draw; InputError for an unknown, repeated or
-    empty choice."""
-    names = value.split(",") if isinstance(value, str) else list(value)
-    try:
-        chosen = [Primitive(str(name).strip()) for name in names]
-    except ValueError:
-        raise InputError(f"primitives {value!r}: expected a comma-separated choice of "
-                         f"{', '.join(Primitive)}") from None
-    if not chosen or len(set(chosen)) != len(chosen):
-        raise InputError(f"primitives {value!r}: name each of {', '.join(Primitive)} at most once, one at least")
-    return tuple(p for p in Primitive if p in chosen)
 
 
 # The first disc of each frame and the smallest (radius in the frame's units, ftorch.space.region):
 # a quarter of the image, or the object's median point distance; each narrowing halves the radius.
 RADII = {Frame.IMAGE: (0.25, 1 / 32), Frame.OBJECT: (1.0, 1 / 8)}
-
-
-def frame_set(value) -> tuple[Frame, ...]:
-    """The frames named by ``value`` (a comma-separated string, empty or "none" for none, or a
-    sequence of names), in :class:`Frame` order; InputError for an unknown or repeated one."""
-    names = ([] if value.strip() in ("", "none") else value.split(",")) if isinstance(value, str) else list(value)
-    try:
-        chosen = [Frame(str(name).strip()) for name in names]
-    except ValueError:
-        raise InputError(f"regions {value!r}: expected none, or a comma-separated choice of {', '.join(Frame)}") from None
-    if len(set(chosen)) != len(chosen):
-        raise InputError(f"regions {value!r}: name each of {', '.join(Frame)} at most once")
-    return tuple(f for f in Frame if f in chosen)
 
 
 def narrowed(feature, frame: Frame) -> float | None:
@@ -116,11 +77,8 @@ class CandidateGenerator:
     """Draws alg. 4.10's candidates with ``generator``; :attr:`sampled` counts the features sampled
     from images (methods 2 and 3), the quantity of figures 4.10 and 5.19."""
 
-    def __init__(self, generator: torch.Generator, primitives=THESIS_PRIMITIVES, regions=(), texture_parts: bool = False):
+    def __init__(self, generator: torch.Generator):
         self.generator = generator
-        self.primitives = primitive_set(primitives)
-        self.regions = frame_set(regions)
-        self.texture_parts = bool(texture_parts)
         self.sampled = 0
         # method 3's strongest occurrences (generate.strongest) by sample image and feature, for
         # one image set: a feature picked again on the same image is not measured again
@@ -134,31 +92,32 @@ class CandidateGenerator:
             self._located = (env, by_image)
         return by_image.setdefault(sample, {})
 
-    def __call__(self, method: Method, n: int, networks: dict[Hashable, ClassNetwork], env: ImageSet,
-                 samples: list[int], char, disc: frozenset, failed: list) -> list:
-        """``n`` candidates of one method for characterizing ``char`` against ``disc``, drawn together;
-        the methods that sample images take the k-th draw from ``samples[k % len(samples)]`` (the
-        thesis: one sample image); ``failed``: earlier candidates of this search."""
+    def __call__(self, method: Method, n: int, settings: LearnerSettings, networks: dict[Hashable, ClassNetwork],
+                 env: ImageSet, samples: list[int], characterized: Hashable, discriminated: frozenset, failed: list) -> list:
+        """``n`` candidates of one method for characterizing ``characterized`` against ``discriminated``,
+        drawn together, of the kinds ``settings`` allows (``primitives``, ``regions``, ``texture_parts``);
+        the methods that sample images take the k-th draw from ``samples[k % len(samples)]`` (the thesis:
+        one sample image); ``failed``: earlier candidates of this search."""
         generator = self.generator
         if method is Method.REUSE:  # reuse a feature of an unrelated class
-            related = {char, *disc}
+            related = {characterized, *discriminated}
             own = {f for c in related if c in networks for f in networks[c].features}
             pool = [f for label, net in networks.items() if label not in related for f in net.features if f not in own]
             pool = list(dict.fromkeys(pool))
             return [pick(pool, generator) for _ in range(n)] if pool else []
         if method is Method.PRIMITIVE:  # new primitive from the sample image; with the thesis's two, rand < 1/2 draws a texel
-            kinds = self.primitives
+            kinds = settings.primitives
             return self._sampled([_SAMPLERS[kinds[int(torch.rand(1, generator=generator) * len(kinds))]](
                 env.record(samples[k % len(samples)]), 0, generator) for k in range(n)])
         pool = in_use(networks) + failed
         if method is Method.REGION:
-            return self._regions(n, pool, env, samples) if self.regions and pool else []
+            return self._regions(n, pool, env, samples, settings.regions) if settings.regions and pool else []
         if method is Method.EXPANSION:  # geometric expansion at the strongest occurrence
             local = [f for f in pool if isinstance(f, LocalFeature)]
             if not local:
                 return []
             return self._sampled([expand_geometric(pick(local, generator), env.record(sample), 0, generator,
-                                                   located=self._occurrences(env, sample), texture=self.texture_parts)
+                                                   located=self._occurrences(env, sample), texture=settings.texture_parts)
                                   for sample in (samples[k % len(samples)] for k in range(n))])
         if len(pool) < 2:
             return []
@@ -170,13 +129,13 @@ class CandidateGenerator:
             made.append(kind(a, b))
         return made
 
-    def _regions(self, n: int, pool: list, env: ImageSet, samples: list[int]) -> list:
+    def _regions(self, n: int, pool: list, env: ImageSet, samples: list[int], regions: tuple[Frame, ...]) -> list:
         """Method 2b: features of ``pool`` each bounded to a region of a frame drawn from ``regions``,
         the disc :func:`narrowed` gives, around its strongest occurrence in its sample image."""
         made = []
         for k in range(n):
             feature = pick(pool, self.generator)
-            frame = self.regions[int(torch.randint(len(self.regions), (1,), generator=self.generator))]
+            frame = regions[int(torch.randint(len(regions), (1,), generator=self.generator))]
             radius = narrowed(feature, frame)
             sample = samples[k % len(samples)]
             if radius is not None:

@@ -24,6 +24,7 @@ from .bayes import ClassNetwork
 from .environment import ImageSet
 from .inference import Recognition
 from .instances import InstanceList
+from .settings import LearnerSettings
 
 HELD_OUT = 2  # measured instances each side needs before a calibrated count leaves the selection images out
 
@@ -36,11 +37,10 @@ class Counting:
     ``calibrate``-d count leaves out (module docstring).
     """
 
-    def __init__(self, calibrate: bool = False):
+    def __init__(self):
         self.instances = InstanceList()
         self.discriminates: dict[tuple, frozenset] = {}
         self.selected: dict[tuple, frozenset] = {}
-        self.calibrate = calibrate
 
     def measure(self, env: ImageSet, features, images) -> None:
         """Enter the values of ``features`` on ``images`` (with their true classes) into the instance list."""
@@ -56,12 +56,12 @@ class Counting:
             self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
 
     def held_out(self, label, features: list, values: np.ndarray, present: np.ndarray,
-                 against: np.ndarray) -> np.ndarray:
+                 against: np.ndarray, calibrate: bool) -> np.ndarray:
         """``values`` (F, n) of nodes ``features`` of class ``label``, with each node's selection images set to NaN (not
         counted) where ``calibrate`` is on and the other measured instances still hold ``HELD_OUT`` of
         ``present`` (n,) and of ``against`` (F, n) each; the values unchanged otherwise."""
         rows = [(k, self.selected[label, f]) for k, f in enumerate(features) if (label, f) in self.selected]
-        if not self.calibrate or not rows:
+        if not calibrate or not rows:
             return values
         column = self.instances.column
         chosen = np.zeros(values.shape, dtype=bool)
@@ -71,11 +71,11 @@ class Counting:
         enough = ((kept & present).sum(1) >= HELD_OUT) & ((kept & against).sum(1) >= HELD_OUT)
         return np.where(chosen & enough[:, None], np.nan, values)
 
-    def discretize(self, label, features: list, cut_position: float,
+    def discretize(self, label, features: list, settings: LearnerSettings,
                    against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
         it discriminates (def. 4.2; ``against``, where given, for all of them), in one batched KSD;
-        the cut-point lies at ``cut_position`` between the two values where the KSD is reached."""
+        the cut-point lies at ``settings.cut_position`` between the two values where the KSD is reached."""
         present = self.instances.has(label)
         others = [against if against is not None else self.discriminates.get((label, f)) for f in features]
         others = [d or frozenset() for d in others]
@@ -84,30 +84,31 @@ class Counting:
             if d not in masks:
                 masks[d] = (self.instances.has_any(d) if d else np.ones_like(present)) & ~present
         discriminated = np.stack([masks[d] for d in others])
-        values = self.held_out(label, features, self.instances.block(features), present, discriminated)
-        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated), cut_position)
+        values = self.held_out(label, features, self.instances.block(features), present, discriminated, settings.calibrate)
+        result = ksd(torch.from_numpy(values), torch.from_numpy(present), torch.from_numpy(discriminated),
+                     settings.cut_position)
         return result.cutpoint.numpy(), result.distinctive.numpy()
 
-    def estimate(self, net: ClassNetwork, pseudocount: float, leak: float = 0.0) -> None:
-        """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a), with
-        the detection-failure ``leak`` of :meth:`ClassNetwork.estimate`."""
+    def estimate(self, net: ClassNetwork, settings: LearnerSettings) -> None:
+        """Re-count the prior and every CPT of ``net`` at its thresholds: (n + a) / (N + 2a) with the
+        ``pseudocount`` a, and the detection-failure ``leak`` of :meth:`ClassNetwork.estimate`."""
         present = self.instances.has(net.label)
-        values = self.held_out(net.label, net.features, self.instances.block(net.features), present, ~present)
+        values = self.held_out(net.label, net.features, self.instances.block(net.features), present, ~present,
+                               settings.calibrate)
         thresholds = np.array([net.threshold[f] for f in net.features])[:, None]
         coded = np.where(np.isnan(values), -1, (values > thresholds).astype(int))
         states = dict(zip(net.features, coded))
-        net.estimate(present, states, pseudocount, leak)
+        net.estimate(present, states, settings.pseudocount, settings.leak)
 
-    def reestimate(self, networks: dict[Hashable, ClassNetwork], cut_position: float, pseudocount: float,
-                   leak: float = 0.0) -> None:
+    def reestimate(self, networks: dict[Hashable, ClassNetwork], settings: LearnerSettings) -> None:
         """Alg. 4.7 step 3: re-discretize every node by KSD and re-count every CPT and prior."""
         for label, net in networks.items():
             if net.features:
-                cuts, _ = self.discretize(label, net.features, cut_position)
+                cuts, _ = self.discretize(label, net.features, settings)
                 for f, cut in zip(net.features, cuts.tolist()):
                     if np.isfinite(cut):
                         net.set_threshold(f, cut)
-            self.estimate(net, pseudocount, leak)
+            self.estimate(net, settings)
 
     def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple]) -> list[torch.Tensor]:
         """KSD_{c,d}(f) (len(others), len(features)) for each (c, others, features) of ``pairs`` (alg.

@@ -1,10 +1,10 @@
 """A recognition's trace (alg. 4.4), as data and as a picture: what the learner asked, what it
 found where, and how each answer moved its beliefs.
 
-:func:`explain` recognizes one image by the learner's own alg. 4.4 (``recognize`` with its
+The learner's ``explain`` recognizes one image by its own alg. 4.4 (``recognize`` with its
 ``test_information`` and ``evidence`` settings), so the answer is ``predict([image])[0]`` and the
-posteriors those of ``predict_proba``; the trace is that recognition's :class:`Recognition`
-(``queried``, ``values``, ``beliefs``) read step by step. Where each queried feature was found is
+posteriors those of ``predict_proba``; :func:`trace` reads that recognition's :class:`Recognition`
+(``queried``, ``values``, ``beliefs``) step by step. Where each queried feature was found is
 :func:`~ftorch.space.evaluate.feature_values`' located reference point in the same image records
 (eq. 3.14), whose value is the one recognition measured.
 
@@ -18,7 +18,7 @@ import math
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from torch import Tensor
@@ -28,12 +28,10 @@ from ..space import draw
 from ..space.evaluate import feature_values
 from ..space.features import Feature, Within
 from ..space.region import Region
+from .bayes import ClassNetwork
 from .environment import ImageSet
 from .inference import Recognition
-from .settings import Evidence
-
-if TYPE_CHECKING:
-    from .learner import DistinctiveFeatureLearner
+from .settings import Evidence, LearnerSettings
 
 # the colours of the picture's marks and legend lines, by the step's effect on the focus class
 COLOURS = {"raised": (20, 150, 40), "lowered": (215, 30, 30), "unchanged": (125, 125, 125)}
@@ -180,14 +178,11 @@ class Explanation:
                 f"in {len(self.steps)} queries (green raised it, red lowered it)")
 
 
-def explain(learner: "DistinctiveFeatureLearner", image) -> Explanation:
-    """Recognize one ``image`` (a file path, array or tensor) with ``learner`` and trace it (module doc):
-    the same alg. 4.4 as ``learner.predict([image])``, with its ``test_information`` and ``evidence``."""
-    learner.classes_  # NotFittedError before anything is measured
-    if isinstance(image, (list, tuple, ImageSet)):
-        raise InputError("explain takes one image (a file path, array or tensor); predict takes a list")
-    env = ImageSet([image], space=learner.space)
-    rec = learner.recognize(env, 0)
+def trace(networks: dict[Hashable, ClassNetwork], settings: LearnerSettings, env: ImageSet,
+          rec: Recognition) -> Explanation:
+    """The trace (module doc) of ``rec``, the recognition (alg. 4.4, with ``settings``' ``test_information``
+    and ``evidence``) of the one image of ``env`` by ``networks``: each queried feature located where it
+    is strongest in the image."""
     every: dict = {}  # (part, regions around it) -> the feature that locates it, as a drawing keys them
     for feature in rec.queried:
         draw.to_locate(feature, every)
@@ -196,16 +191,16 @@ def explain(learner: "DistinctiveFeatureLearner", image) -> Explanation:
     where = {f: Location(*(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta)))
              for j, f in enumerate(measured)}
     return Explanation(frozenset(rec.recognized), rec.top, dict(rec.posteriors), dict(rec.beliefs[0]),
-                       tuple(_steps(learner, rec, where)), learner.settings.evidence, learner.settings.test_information,
+                       tuple(_steps(networks, rec, where)), settings.evidence, settings.test_information,
                        env.names[0], env.images[0])
 
 
-def _steps(learner: "DistinctiveFeatureLearner", rec: Recognition, where: dict) -> list[Step]:
+def _steps(networks: dict[Hashable, ClassNetwork], rec: Recognition, where: dict) -> list[Step]:
     out = []
     for n, feature in enumerate(rec.queried):
         value = rec.values[feature]
         nodes = tuple(Node(label, float(net.threshold[feature]), bool(value > net.threshold[feature]))
-                      for label, net in learner.networks.items() if feature in net)
+                      for label, net in networks.items() if feature in net)
         parts: dict = {}
         draw.to_locate(feature, parts)
         out.append(Step(feature, float(value), nodes, where[feature], dict(rec.beliefs[n]), dict(rec.beliefs[n + 1]),

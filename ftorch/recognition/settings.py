@@ -20,7 +20,45 @@ import numpy as np
 from ..errors import InputError
 from ..settings import Settings, option
 from ..space.region import Frame
-from .candidates import THESIS_PRIMITIVES, Primitive, frame_set, primitive_set
+
+
+class Primitive(StrEnum):
+    """The kinds of new primitive that method 2 samples, in the order its draw indexes them."""
+
+    TEXEL = "texel"
+    EDGEL = "edgel"  # a geometric compound of two edgels
+    TEXTURE = "texture"  # 7.2.1
+
+
+THESIS_PRIMITIVES = (Primitive.TEXEL, Primitive.EDGEL)
+
+
+def primitive_set(value) -> tuple[Primitive, ...]:
+    """The primitives named by ``value`` (a comma-separated string or a sequence of names), in
+    :class:`Primitive` order, so that a set names one draw; InputError for an unknown, repeated or
+    empty choice."""
+    names = value.split(",") if isinstance(value, str) else list(value)
+    try:
+        chosen = [Primitive(str(name).strip()) for name in names]
+    except ValueError:
+        raise InputError(f"primitives {value!r}: expected a comma-separated choice of "
+                         f"{', '.join(Primitive)}") from None
+    if not chosen or len(set(chosen)) != len(chosen):
+        raise InputError(f"primitives {value!r}: name each of {', '.join(Primitive)} at most once, one at least")
+    return tuple(p for p in Primitive if p in chosen)
+
+
+def frame_set(value) -> tuple[Frame, ...]:
+    """The frames named by ``value`` (a comma-separated string, empty or "none" for none, or a
+    sequence of names), in :class:`Frame` order; InputError for an unknown or repeated one."""
+    names = ([] if value.strip() in ("", "none") else value.split(",")) if isinstance(value, str) else list(value)
+    try:
+        chosen = [Frame(str(name).strip()) for name in names]
+    except ValueError:
+        raise InputError(f"regions {value!r}: expected none, or a comma-separated choice of {', '.join(Frame)}") from None
+    if len(set(chosen)) != len(chosen):
+        raise InputError(f"regions {value!r}: name each of {', '.join(Frame)} at most once")
+    return tuple(f for f in Frame if f in chosen)
 
 
 class Evidence(StrEnum):

@@ -36,6 +36,7 @@ import torch
 from ..errors import InputError
 from .environment import ImageSet
 from .inference import Outcome, Result, outcome
+from .learning import Learning
 from .settings import whole
 
 AUTO_LIMIT = 12  # stages of an "auto" schedule at most
@@ -205,7 +206,7 @@ class Schedule:
     ``stages``: expert stages after stage 0, or None for auto (module docstring). ``progress``: where
     an earlier schedule stopped, to go on from there."""
 
-    def __init__(self, learner, env: ImageSet, order: torch.Generator, stages: int | None = None,
+    def __init__(self, learner: Learning, env: ImageSet, order: torch.Generator, stages: int | None = None,
                  max_cycles: int = MAX_CYCLES, classes: list | None = None, incremental: bool = False,
                  versions: int = 1, progress: Progress | None = None):
         self.learner, self.env, self.order = learner, env, order
@@ -275,7 +276,7 @@ class Schedule:
                 ksd_min = min(ksd_min, p.ksd)
         discarded = learner.discard_unused(since=begin + 1)
         if versions > 1:
-            judged = learner._recognize_many(env, shown, learner.settings.min_information)  # learning's: no top label
+            judged = learner.recognitions(env, shown, learner.settings.min_information)  # learning's: no top label
             mistakes = sum(outcome(r.recognized, env.labels[i]) is not Outcome.CORRECT for r, i in zip(judged, shown))
         else:
             mistakes = sum(r.mistake for r in results)

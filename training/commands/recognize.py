@@ -15,9 +15,8 @@ import torch
 from ftorch import FeatureSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
-from ftorch.recognition.candidates import frame_set, primitive_set
 from ftorch.recognition.learner import DistinctiveFeatureLearner
-from ftorch.recognition.settings import Evidence, LearnerSettings
+from ftorch.recognition.settings import Evidence, LearnerSettings, frame_set, primitive_set
 from ftorch.recognition.stages import CYCLES_LIMIT, MAX_CYCLES, STAGES_LIMIT
 from ftorch.space.draw import save_rgb
 from ftorch.space.record import ImageRecords, require_memory

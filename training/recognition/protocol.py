@@ -25,10 +25,11 @@ from ftorch.checkpoint import DAMAGED, decode_array, encode_array, load_checkpoi
 from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome, top1_accuracy
-from ftorch.recognition.learner import GENERATOR_STATE, TRAINING_STATE, DistinctiveFeatureLearner
-from ftorch.recognition.learner import KIND as LEARNER_KIND
+from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Cycle, Progress, Schedule, Stage
+from ftorch.recognition.state import GENERATOR_STATE, TRAINING_STATE
+from ftorch.recognition.state import KIND as LEARNER_KIND
 from ftorch.space.features import unpack_features
 from ftorch.space.record import FeatureSpace, ImageRecords
 from training.data.augment import augment
