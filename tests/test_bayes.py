@@ -6,7 +6,7 @@ import pytest
 
 from ftorch.recognition import exact
 from ftorch.recognition.bayes import CLASS, ClassNetwork, compound_arcs
-from ftorch.recognition.exact import ExactInference
+from ftorch.recognition.exact import ExactInference, engine
 from ftorch.space.features import Conjunction, Disjunction, Geometric, Part, Texel
 
 warnings.filterwarnings("ignore", category=FutureWarning)
@@ -53,17 +53,17 @@ def information_from(joint: np.ndarray) -> float:
 def test_fast_inference_equals_pgmpy_variable_elimination(seed, table_limit):
     rng = np.random.default_rng(seed)
     net = random_network(rng, n_features=int(rng.integers(3, 9)), table_limit=table_limit)
-    assert all(g.table is None for g in net.inference.groups) == (table_limit == 0)
+    assert all(g.table is None for g in engine(net).groups) == (table_limit == 0)
     assert net.to_pgmpy().check_model()
     for _ in range(4):
         observed = [k for k in net.features if rng.random() < 0.5]
         evidence = {k: int(rng.integers(0, 2)) for k in observed}
-        np.testing.assert_allclose(net.inference.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
-        assert net.inference.posterior(evidence) == pytest.approx(pgmpy_query(net, [CLASS], evidence)[1], abs=1e-9)
-        informations = net.inference.informations(evidence)
+        np.testing.assert_allclose(engine(net).joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
+        assert engine(net).posterior(evidence) == pytest.approx(pgmpy_query(net, [CLASS], evidence)[1], abs=1e-9)
+        informations = engine(net).informations(evidence)
         for query in (k for k in net.features if k not in evidence):
             expected = pgmpy_query(net, [CLASS, query], evidence)
-            np.testing.assert_allclose(net.inference.joint(evidence, query), expected, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(engine(net).joint(evidence, query), expected, rtol=0, atol=1e-9)
             assert informations[query] == pytest.approx(information_from(expected), abs=1e-9)
 
 
@@ -75,10 +75,10 @@ def test_large_linked_groups_take_einsum_and_equal_pgmpy():
         net.add_feature(i, parents=[i - 1] if i else [])
         p = rng.uniform(0.05, 0.95, size=net.cpt[i].shape[:-1])
         net.set_cpt(i, np.stack([1 - p, p], axis=-1))
-    assert len(net.features) > ClassNetwork.TABLE_LIMIT and net.inference.groups[0].table is None
+    assert len(net.features) > ClassNetwork.TABLE_LIMIT and engine(net).groups[0].table is None
     evidence = {0: 1, 5: 0, 16: 1}
-    np.testing.assert_allclose(net.inference.joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
-    informations = net.inference.informations(evidence)
+    np.testing.assert_allclose(engine(net).joint(evidence), pgmpy_query(net, [CLASS], evidence), rtol=0, atol=1e-9)
+    informations = engine(net).informations(evidence)
     for query in (3, 10):
         assert informations[query] == pytest.approx(information_from(pgmpy_query(net, [CLASS, query], evidence)), abs=1e-9)
 
@@ -87,11 +87,11 @@ def test_assigning_a_cpt_or_prior_takes_effect():
     net = ClassNetwork("c")
     net.add_feature("a")
     net.add_feature("b", parents=["a"])
-    before = net.inference.posterior({"b": 1})
+    before = engine(net).posterior({"b": 1})
     net.set_cpt("b", np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]]))
-    assert net.inference.posterior({"b": 1}) == pytest.approx(0.9) and before == pytest.approx(0.5)
+    assert engine(net).posterior({"b": 1}) == pytest.approx(0.9) and before == pytest.approx(0.5)
     net.prior = np.array([0.75, 0.25])
-    assert net.inference.posterior({}) == pytest.approx(0.25)
+    assert engine(net).posterior({}) == pytest.approx(0.25)
 
 
 def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the_network_changes():
@@ -99,19 +99,19 @@ def test_remembered_evaluations_equal_fresh_inference_and_are_forgotten_when_the
     net = random_network(rng, 7)
     states = [np.where(rng.random(7) < 0.5, rng.integers(0, 2, 7), -1) for _ in range(40)]
     for state in states + states:  # the second pass is answered from memory
-        posterior, info = net.inference.evaluate(state)
-        fresh = net.inference.infer(state)
+        posterior, info = engine(net).evaluate(state)
+        fresh = engine(net).infer(state)
         assert posterior == fresh[0] and np.array_equal(info, fresh[1])
-    assert len(net.inference.memo) == len({s.tobytes() for s in states})
+    assert len(engine(net).memo) == len({s.tobytes() for s in states})
     state = states[0]
-    before = net.inference.evaluate(state)[0]
+    before = engine(net).evaluate(state)[0]
     net.prior = net.prior[::-1].copy()
-    assert len(net.inference.memo) == 0 and net.inference.evaluate(state)[0] == net.inference.infer(state)[0] != before
+    assert len(engine(net).memo) == 0 and engine(net).evaluate(state)[0] == engine(net).infer(state)[0] != before
     net.set_cpt(3, np.full_like(net.cpt[3], 0.5))
-    assert len(net.inference.memo) == 0
+    assert len(engine(net).memo) == 0
     net.add_feature(7, parents=[2])
     longer = np.append(state, -1)
-    assert net.inference.evaluate(longer)[0] == net.inference.infer(longer)[0] and len(net.inference.evaluate(longer)[1]) == 8
+    assert engine(net).evaluate(longer)[0] == engine(net).infer(longer)[0] and len(engine(net).evaluate(longer)[1]) == 8
 
 
 def chain_and_singles(rng, linked: int, singles: int) -> ClassNetwork:
@@ -133,26 +133,26 @@ def test_large_groups_remember_contractions_by_their_own_evidence(monkeypatch):
     forgets them (but not the einsum paths, which depend on the structure only)."""
     rng = np.random.default_rng(3)
     net = chain_and_singles(rng, 17, 3)
-    group = net.inference.groups[0]
-    assert group.table is None and len(net.inference.groups) == 1
+    group = engine(net).groups[0]
+    assert group.table is None and len(engine(net).groups) == 1
     calls = []
     afresh = ExactInference._contract_afresh
     monkeypatch.setattr(ExactInference, "_contract_afresh", lambda self, *a: calls.append(1) or afresh(self, *a))
     inside = np.where(rng.random(17) < 0.3, rng.integers(0, 2, 17), -1)
     states = [np.concatenate([inside, outside]) for outside in ([-1, -1, -1], [1, -1, -1], [1, 0, -1], [1, 0, 1])]
-    results = [net.inference.infer(state) for state in states]
+    results = [engine(net).infer(state) for state in states]
     open_nodes = int((inside < 0).sum())
     assert len(calls) == 1 + open_nodes  # the likelihood and one query per open node, once for all four states
     for state, (posterior, info) in zip(states, results):
         group.contracted.clear()
-        fresh = net.inference.infer(state)
+        fresh = engine(net).infer(state)
         assert posterior == fresh[0] and np.array_equal(info, fresh[1])
-    paths = net.inference.paths
+    paths = engine(net).paths
     assert paths and all(len(expression.split(",")) > 3 for expression in paths)  # einsum paths found for big contractions
-    engine = net.inference
+    before = engine(net)
     net.set_cpt(0, np.full_like(net.cpt[0], 0.5))
-    assert net.inference is not engine and net.inference.groups[0].contracted == {}
-    assert net.inference.paths is paths  # the paths depend on the structure only: the network keeps them
+    assert engine(net) is not before and engine(net).groups[0].contracted == {}
+    assert engine(net).paths is paths  # the paths depend on the structure only: they carry over to the new engine
 
 
 def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch):
@@ -160,18 +160,18 @@ def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch
     evidence elsewhere reuses them, the results equal computing them afresh bit for bit and agree
     with pgmpy, and a change of the network forgets them."""
     net = chain_and_singles(np.random.default_rng(4), 4, 3)
-    group = net.inference.groups[0]
-    assert group.table is not None and len(net.inference.groups) == 1
+    group = engine(net).groups[0]
+    assert group.table is not None and len(engine(net).groups) == 1
     calls = []
     afresh = exact._Group._evidence
     monkeypatch.setattr(exact._Group, "_evidence", lambda self, own: calls.append(1) or afresh(self, own))
     inside = np.array([1, -1, 0, -1])
     states = [np.concatenate([inside, outside]) for outside in ([-1, -1, -1], [1, -1, -1], [1, 0, -1], [1, 0, 1])]
-    results = [net.inference.infer(state) for state in states]
+    results = [engine(net).infer(state) for state in states]
     assert len(calls) == 1  # once for all four states
     for state, (posterior, info) in zip(states, results):
         group.given.clear()
-        fresh = net.inference.infer(state)
+        fresh = engine(net).infer(state)
         assert posterior == fresh[0] and np.array_equal(info, fresh[1])
         evidence = {k: int(v) for k, v in zip(net.features, state) if v >= 0}
         np.testing.assert_allclose(posterior, pgmpy_query(net, [CLASS], evidence)[1], atol=1e-12)
@@ -179,16 +179,16 @@ def test_compiled_groups_remember_their_tables_by_their_own_evidence(monkeypatch
             expected = information_from(pgmpy_query(net, [CLASS, net.features[i]], evidence))
             assert info[i] == pytest.approx(expected, abs=1e-12)
     net.set_cpt(0, np.full_like(net.cpt[0], 0.5))
-    assert net.inference.groups[0].given == {}
+    assert engine(net).groups[0].given == {}
 
 
 def test_mutual_information_vanishes_for_observed_or_certain_classes():
     rng = np.random.default_rng(1)
     net = random_network(rng, 4)
-    assert net.inference.mutual_information(3, {}) > 0
-    assert net.inference.mutual_information(3, {3: 1}) == pytest.approx(0, abs=1e-12)
+    assert engine(net).mutual_information(3, {}) > 0
+    assert engine(net).mutual_information(3, {3: 1}) == pytest.approx(0, abs=1e-12)
     net.prior = np.array([0.0, 1.0])
-    assert net.inference.mutual_information(3, {}) == pytest.approx(0, abs=1e-12)
+    assert engine(net).mutual_information(3, {}) == pytest.approx(0, abs=1e-12)
 
 
 def test_counting_with_unknown_values_and_the_zero_count_rule():
@@ -264,10 +264,10 @@ def test_all_informations_at_once_equal_one_by_one(seed):
         p = rng.uniform(0.05, 0.95, size=2)
         net.set_cpt(f"naive{extra}", np.stack([1 - p, p], axis=-1))
     evidence = {k: int(rng.integers(0, 2)) for k in net.features if rng.random() < 0.4}
-    together = net.inference.informations(evidence)
+    together = engine(net).informations(evidence)
     assert set(together) == {k for k in net.features if k not in evidence}
     for key, info in together.items():
-        assert info == pytest.approx(net.inference.mutual_information(key, evidence), abs=1e-12)
+        assert info == pytest.approx(engine(net).mutual_information(key, evidence), abs=1e-12)
 
 
 def test_a_network_changes_only_through_its_methods():
@@ -283,11 +283,11 @@ def test_a_network_changes_only_through_its_methods():
         net.parents["b"].append("a")
     with pytest.raises(ValueError, match="read-only"):
         net.cpt["a"][0, 0] = 0.9
-    before = net.inference.posterior({"b": 1})
+    before = engine(net).posterior({"b": 1})
     net.add_arc("a", "b")  # a feature arc; b's CPT returns to 1/2 with a's state as a new axis
-    assert net.parents["b"] == ("a",) and net.cpt["b"].shape == (2, 2, 2) and net.inference.posterior({"b": 1}) == before
+    assert net.parents["b"] == ("a",) and net.cpt["b"].shape == (2, 2, 2) and engine(net).posterior({"b": 1}) == before
     net.set_cpt("b", np.array([[[0.9, 0.1], [0.9, 0.1]], [[0.1, 0.9], [0.1, 0.9]]]))
-    assert net.inference.posterior({"b": 1}) == pytest.approx(0.9)  # the compiled tables follow
+    assert engine(net).posterior({"b": 1}) == pytest.approx(0.9)  # the compiled tables follow
     with pytest.raises(ValueError, match="shape"):
         net.set_cpt("b", np.full((2, 2), 0.5))
     with pytest.raises(ValueError, match="cycle"):

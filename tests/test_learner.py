@@ -10,6 +10,7 @@ from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.candidates import in_use
 from ftorch.recognition.environment import ImageSet
+from ftorch.recognition.exact import engine
 from ftorch.recognition.inference import Recognition, accuracy, recognize, recognize_block, residual_entropy
 from ftorch.recognition.instances import InstanceList
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -371,10 +372,10 @@ def test_min_information_stops_recognition_early_and_only_then(shapes, bits):
         learner.set_params(test_information=bits)
         short = learner.recognize(shapes, image)
         assert short.queried == full.queried[:len(short.queried)]
-        states = {label: net.inference.state({f: int(short.values[f] > net.threshold[f]) for f in short.queried if f in net})
+        states = {label: engine(net).state({f: int(short.values[f] > net.threshold[f]) for f in short.queried if f in net})
                   for label, net in learner.networks.items()}
         remaining = [info for label, net in learner.networks.items() for f, info in
-                     zip(net.features, net.inference.evaluate(states[label])[1]) if f not in short.values]
+                     zip(net.features, engine(net).evaluate(states[label])[1]) if f not in short.values]
         assert max(remaining, default=0.0) <= bits
     with pytest.raises(InputError, match="min_information"):
         DistinctiveFeatureLearner.thesis(min_information=1.5)

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from ftorch.recognition.bayes import ClassNetwork
+from ftorch.recognition.exact import engine
 from training import bench, run
 
 
@@ -86,9 +87,9 @@ def test_recognition_benchmark_agrees_with_its_baselines(tmp_path):
     for limit in (ClassNetwork.TABLE_LIMIT, 0):  # the tables and the einsum baseline remember nothing from before
         net = bench.learned_like_network(np.random.default_rng(0), table_limit=limit)
         unobserved, observed = np.full(len(net.features), -1), np.ones(len(net.features), dtype=np.int64)
-        net.inference.infer(unobserved)
-        assert bench.infer_afresh(net, observed)[0] == net.inference.infer(observed)[0]
-        for group in net.inference.groups:
+        engine(net).infer(unobserved)
+        assert bench.infer_afresh(net, observed)[0] == engine(net).infer(observed)[0]
+        for group in engine(net).groups:
             remembered = list(group.given) + [key for key, _ in group.contracted]
             assert remembered and set(remembered) == {observed[group.positions].tobytes()}
 

@@ -14,6 +14,7 @@ from scipy.special import logsumexp
 
 from ftorch import Answer, DistinctiveFeatureLearner, FeatureSpace, ImageSet, InputError, LearnerSettings
 from ftorch.recognition.bayes import CLASS, ClassNetwork
+from ftorch.recognition.exact import engine
 from ftorch.recognition.inference import Outcome, Plan, Recognition, outcome, recognize, recognize_block, top_class
 from ftorch.recognition.recognizer import BLOCK_MIN
 from training import run
@@ -56,7 +57,7 @@ def test_log_odds_equal_a_brute_force_joint_and_pgmpy_on_random_networks(seed, d
     checked = 0
     for _ in range(6):
         evidence = {k: int(rng.integers(0, 2)) for k in net.features if rng.random() < 0.6}
-        got = net.inference.log_odds(net.inference.state(evidence))
+        got = engine(net).log_odds(engine(net).state(evidence))
         joint = brute_log_joint(net, evidence)
         if np.isneginf(joint).all():  # impossible evidence under both class values
             assert math.isnan(got)
@@ -87,8 +88,8 @@ def test_log_odds_do_not_saturate_where_the_posterior_does():
     net.prior = np.array([0.3, 0.7])
     for side, saturated in ((1, 1.0), (0, 0.0)):
         evidence = {**{f"f{i}": side for i in range(120)}, "g1": side}  # g0 open: the group sums over it
-        assert net.inference.posterior(evidence) == saturated
-        got = net.inference.log_odds(net.inference.state(evidence))
+        assert engine(net).posterior(evidence) == saturated
+        got = engine(net).log_odds(engine(net).state(evidence))
         joint = brute_log_joint(net, evidence)
         assert math.isfinite(got) and abs(got) > 700 and got == pytest.approx(joint[1] - joint[0], rel=1e-12)
 
@@ -193,7 +194,7 @@ def test_posteriors_saturated_at_zero_go_to_the_larger_log_odds():
     for order in ("AB", "BA"):
         made = {"A": rare("A", 1e-200), "B": rare("B", 1e-150)}
         nets = {label: made[label] for label in order}
-        assert all(net.inference.posterior({f"f{c}": 0}) == 0.0 for c, net in nets.items())
+        assert all(engine(net).posterior({f"f{c}": 0}) == 0.0 for c, net in nets.items())
         first = Recognition({"A": 0.0, "B": 0.0}, set(), ["fA", "fB"], {"fA": ABSENT, "fB": ABSENT})
 
         def never(key):
@@ -243,7 +244,7 @@ def reference_top(networks: dict, rec: Recognition, values: dict, positive_only:
             net = networks[c]
             if key in net and not (positive_only and values[key] <= net.threshold[key]):
                 trial = {**evidence[c], key: int(values[key] > net.threshold[key])}
-                if not math.isnan(net.inference.posterior(trial)):
+                if not math.isnan(engine(net).posterior(trial)):
                     evidence[c] = trial
 
     for key in rec.queried:
@@ -252,16 +253,16 @@ def reference_top(networks: dict, rec: Recognition, values: dict, positive_only:
     while True:
         best, most = None, 1e-12
         for c in candidates:
-            for key, info in networks[c].inference.informations(evidence[c]).items():
+            for key, info in engine(networks[c]).informations(evidence[c]).items():
                 if key not in asked and info > most:
                     best, most = key, info
         if best is None:
             break
         asked.add(best)
         enter(best)
-    posterior = {c: networks[c].inference.posterior(evidence[c]) for c in candidates}
+    posterior = {c: engine(networks[c]).posterior(evidence[c]) for c in candidates}
     tied = [c for c in candidates if posterior[c] == max(posterior.values())]
-    odds = {c: networks[c].inference.log_odds(networks[c].inference.state(evidence[c])) for c in tied}
+    odds = {c: engine(networks[c]).log_odds(engine(networks[c]).state(evidence[c])) for c in tied}
     return next(c for c in tied if odds[c] == max(odds.values()))
 
 

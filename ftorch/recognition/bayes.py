@@ -12,19 +12,22 @@ likelihood, so a configuration seen only with one outcome gets probability 0 or 
 relies on this: a feature can drive its class entropy to zero, 4.4.4); a parent configuration
 never seen gets 1/2 (no information). The prior of the class node is counted the same way.
 
-The model changes only through its methods; each change drops its inference engine, which
-it builds again at the next query (:attr:`ClassNetwork.inference`).
+The model changes only through its methods; each change drops its :class:`Snapshot`, the
+immutable network as it stands that the inference engine consumes (ftorch/recognition/exact.py,
+:func:`~ftorch.recognition.exact.engine`, which keeps the engines outside the model).
 """
 from __future__ import annotations
 
 import re
-from collections.abc import Hashable
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
 
 from ..space.features import Feature
-from .exact import CLASS, ExactInference
+
+CLASS = "class"  # the class node's name
 
 
 def _identifier(text: str) -> str:
@@ -57,6 +60,19 @@ def compound_arcs(feature: Feature, present) -> tuple[list, list]:
     return parents, children
 
 
+@dataclass(frozen=True)
+class Snapshot:
+    """A class network as it stands, immutable (its CPTs are read-only arrays): what its exact inference
+    engine consumes. A change to the network makes a new one; a threshold is no part of it."""
+
+    label: Hashable
+    features: tuple[Hashable, ...]
+    parents: Mapping[Hashable, tuple[Hashable, ...]]
+    cpt: Mapping[Hashable, np.ndarray]  # P(F | class, parents...) indexed [c, p1..pk, f]
+    prior: np.ndarray  # P(class) as (absent, present)
+    table_limit: int
+
+
 def _same(old: np.ndarray | None, new: np.ndarray) -> bool:
     """Whether ``new`` repeats ``old`` byte for byte (shape included; None: there was none)."""
     return old is not None and old.shape == new.shape and old.tobytes() == new.tobytes()
@@ -65,16 +81,16 @@ def _same(old: np.ndarray | None, new: np.ndarray) -> bool:
 class ClassNetwork:
     """The Bayesian network of one class: prior, feature nodes, arcs, CPTs and thresholds.
 
-    Queries (posteriors, informations, joints) go to its exact inference engine, :attr:`inference`.
+    Queries (posteriors, informations, joints) go to the exact inference engine of its :meth:`snapshot`.
     ``features`` (a tuple), ``parents`` (tuples), ``threshold`` and ``cpt`` are read-only views:
     the network changes only through its methods (:meth:`add_feature`, :meth:`remove_feature`,
     :meth:`add_arc`, :meth:`set_threshold`, :meth:`set_cpt`, :meth:`estimate`, the ``prior``
-    setter), each of which drops the engine, so that the next query builds it from the network as
-    it then stands. CPTs are replaced, never edited in place (they are read-only arrays).
+    setter), each of which drops the snapshot, so that the next query's engine is built from the
+    network as it then stands. CPTs are replaced, never edited in place (they are read-only arrays).
     ``revision`` counts those changes (thresholds included): equal revisions of one network object
     mean the same network, so a recognition made at one still holds (the learner's blocks). A CPT or
-    prior replaced by the same bytes, or a threshold by an equal value, is no change: the engine
-    and its memories stay.
+    prior replaced by the same bytes, or a threshold by an equal value, is no change: the snapshot,
+    its engine and the engine's memories stay.
     ``table_limit``: linked groups up to this many nodes are compiled to tables (0: all by einsum).
     """
 
@@ -88,9 +104,8 @@ class ClassNetwork:
         self._threshold: dict[Hashable, float] = {}
         self._cpt: dict[Hashable, np.ndarray] = {}  # P(F | class, parents...) indexed [c, p1..pk, f]
         self.parents, self.threshold, self.cpt = (MappingProxyType(d) for d in (self._parents, self._threshold, self._cpt))
-        self._inference: ExactInference | None = None
+        self._snapshot: Snapshot | None = None
         self.revision = 0
-        self._paths: dict[str, list] = {}  # einsum paths of its large groups, handed to each new engine
         self.prior = np.array([0.5, 0.5])
 
     @classmethod
@@ -126,8 +141,8 @@ class ClassNetwork:
             self._changed()  # the same bytes again (a re-count that found the same) change nothing
 
     def _changed(self) -> None:
-        """Any change: the engine is dropped and the revision counted."""
-        self._inference = None
+        """Any change: the snapshot is dropped and the revision counted."""
+        self._snapshot = None
         self.revision += 1
 
     def set_cpt(self, key: Hashable, table) -> None:
@@ -255,13 +270,14 @@ class ClassNetwork:
             for key, table in zip(keys, tables):
                 self._put(key, table)
 
-    @property
-    def inference(self) -> ExactInference:
-        """The exact inference engine of the network as it stands (module doc of
-        ftorch/recognition/exact.py), built at first use after any change."""
-        if self._inference is None:
-            self._inference = ExactInference(self, self._paths)
-        return self._inference
+    def snapshot(self) -> Snapshot:
+        """The network as it stands, made at first use after any change (thresholds aside)."""
+        if self._snapshot is None:
+            prior = self._prior.copy()
+            prior.flags.writeable = False
+            self._snapshot = Snapshot(self.label, self._features, MappingProxyType(dict(self._parents)),
+                                      MappingProxyType(dict(self._cpt)), prior, self.table_limit)
+        return self._snapshot
 
     def node_names(self) -> dict:
         """The exported name of every node: 'class', and per feature its position and kind

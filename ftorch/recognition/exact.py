@@ -1,5 +1,7 @@
-"""Exact inference in a class network (4.4.1, eq. 4.2): the engine a
-:class:`~ftorch.recognition.bayes.ClassNetwork` builds of itself.
+"""Exact inference in a class network (4.4.1, eq. 4.2): the engine that consumes a
+:class:`~ftorch.recognition.bayes.ClassNetwork`'s :class:`~ftorch.recognition.bayes.Snapshot`, and
+:func:`engine`, which keeps one engine per network outside the model, keyed by the network and its
+snapshot (a change to the network makes a new snapshot, hence a new engine).
 
 Inference is exact and factorised. Given the class node, the feature nodes fall into
 independent *groups*, the connected components of the feature arcs:
@@ -15,14 +17,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable
-from typing import TYPE_CHECKING
+from weakref import WeakKeyDictionary
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .bayes import ClassNetwork
+from .bayes import CLASS, ClassNetwork, Snapshot
 
-CLASS = "class"  # the class node's name
 _LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
@@ -46,7 +46,7 @@ class _Group:
     ``contracted``: einsum results by the group's own evidence and query (:meth:`ExactInference._contract`);
     ``given``: a compiled group's likelihood and open-node tables by its own evidence (:meth:`evidence`)."""
 
-    def __init__(self, network: ClassNetwork, keys: list):
+    def __init__(self, network: Snapshot, keys: list):
         self.keys = keys
         self.contracted: dict[tuple, np.ndarray] = {}
         self.given: dict[bytes, tuple] = {}
@@ -98,13 +98,13 @@ def _remembered(memo: dict, key, compute):
 
 
 class ExactInference:
-    """The exact inference engine of one :class:`~ftorch.recognition.bayes.ClassNetwork` as it stands:
+    """The exact inference engine of one class network's :class:`~ftorch.recognition.bayes.Snapshot`:
     arc-free nodes stacked for the closed form, linked groups compiled or contracted (module doc),
-    and the results of :meth:`evaluate` by evidence state (``memo``). The network builds a new one
-    after any change (:attr:`ClassNetwork.inference`); ``paths``: the einsum paths found so far,
-    which depend on the structure only, handed from one engine of the network to the next."""
+    and the results of :meth:`evaluate` by evidence state (``memo``). :func:`engine` makes a new one
+    after any change; ``paths``: the einsum paths found so far, which depend on the structure only,
+    handed from one engine of the network to the next."""
 
-    def __init__(self, network: ClassNetwork, paths: dict[str, list] | None = None):
+    def __init__(self, network: Snapshot, paths: dict[str, list] | None = None):
         self.network = network
         self.paths = {} if paths is None else paths
         self.memo: dict[bytes, tuple[float, np.ndarray]] = {}
@@ -288,3 +288,18 @@ class ExactInference:
         """I(C, F | evidence) for every unobserved feature (dict form of :meth:`evaluate`)."""
         info = self.evaluate(self.state(evidence))[1]
         return {k: float(info[i]) for i, k in enumerate(self.network.features) if k not in evidence}
+
+
+_ENGINES: WeakKeyDictionary[ClassNetwork, ExactInference] = WeakKeyDictionary()  # the latest engine of each network
+_PATHS: WeakKeyDictionary[ClassNetwork, dict[str, list]] = WeakKeyDictionary()  # einsum paths, by network
+
+
+def engine(network: ClassNetwork) -> ExactInference:
+    """The exact inference engine of ``network`` as it stands: the one made of its current snapshot,
+    made now where the network has changed since (the engine and its memories then start afresh; the
+    einsum paths found for the network carry over)."""
+    snapshot = network.snapshot()
+    found = _ENGINES.get(network)
+    if found is None or found.network is not snapshot:
+        found = _ENGINES[network] = ExactInference(snapshot, _PATHS.setdefault(network, {}))
+    return found

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from .bayes import ClassNetwork
+from .exact import engine
 
 TOP_TOLERANCE = 1e-12  # alg. 4.4 continued for the top label (top_class) stops at I_max <= this, whatever test_information
 
@@ -203,7 +204,7 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     plan = Plan.of(networks, plan)
     labels, nets, keys, slot_key = plan.labels, plan.nets, plan.keys, plan.slot_key
     states = [np.full(len(net.features), -1, dtype=np.int64) for net in nets]
-    evaluated = [net.inference.evaluate(state) for net, state in zip(nets, states)]
+    evaluated = [engine(net).evaluate(state) for net, state in zip(nets, states)]
     belief = [e[0] for e in evaluated]
     informative = np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0)
     asked = np.zeros(len(slot_key), dtype=bool)
@@ -228,7 +229,7 @@ def _entered(net: ClassNetwork, state: np.ndarray, position: int, present: bool)
     informations) under it; None where the network deems that evidence impossible (not entered)."""
     trial = state.copy()
     trial[position] = int(present)
-    posterior, info = net.inference.evaluate(trial)
+    posterior, info = engine(net).evaluate(trial)
     return (trial, posterior, info) if posterior == posterior else None  # NaN: impossible
 
 
@@ -312,13 +313,13 @@ def top_class(networks: dict[Hashable, ClassNetwork], rec: Recognition, measure:
     states, belief = {}, {}
     for n in candidates:
         states[n] = _replayed(nets[n], local[n], rec, positive_only)
-        belief[n], info = nets[n].inference.evaluate(states[n])
+        belief[n], info = engine(nets[n]).evaluate(states[n])
         informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
     _sequential(plan, states, belief, informative, asked, measure, TOP_TOLERANCE, positive_only, chosen)
     largest = max(belief[n] for n in candidates)
     tied = [n for n in candidates if belief[n] == largest]
     if len(tied) > 1:  # saturated in float: the log odds still tell them apart; then network order
-        odds = {n: nets[n].inference.log_odds(states[n]) for n in tied}
+        odds = {n: engine(nets[n]).log_odds(states[n]) for n in tied}
         most = max((o for o in odds.values() if o == o), default=None)
         tied = [n for n in tied if odds[n] == most] or tied
     return labels[tied[0]]
@@ -350,7 +351,7 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
     for n, net in enumerate(nets):
         thresholds[n, plan.where[n]] = [net.threshold[k] for k in net.features]
     states = [np.full((count, len(net.features)), -1, dtype=np.int64) for net in nets]
-    evaluated = [net.inference.evaluate(state[0]) for net, state in zip(nets, states)]
+    evaluated = [engine(net).evaluate(state[0]) for net, state in zip(nets, states)]
     belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))
     informative = np.tile(np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0), (count, 1))
     asked = np.zeros(informative.shape, dtype=bool)
@@ -385,7 +386,7 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
                     continue
             trial = states[n][images]
             trial[np.arange(len(images)), plan.position[n, nodes]] = present
-            inference = net.inference
+            inference = engine(net)
             results = [inference.evaluate(row) for row in trial]
             posterior = np.array([r[0] for r in results])
             possible = posterior == posterior  # not NaN: the evidence is possible
