@@ -341,71 +341,84 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
     candidates), so the tops are those of :func:`recognize` too.
     """
     plan = Plan.of(networks, plan)
-    labels, nets, keys, start, slot_key = plan.labels, plan.nets, plan.keys, plan.start, plan.slot_key
-    count = values.shape[1]
-    if values.shape[0] != len(keys):
-        raise ValueError(f"values for {values.shape[0]} features, but the networks hold {len(keys)}")
-    if not count:
+    if values.shape[0] != len(plan.keys):
+        raise ValueError(f"values for {values.shape[0]} features, but the networks hold {len(plan.keys)}")
+    if not values.shape[1]:
         return []
-    thresholds = np.zeros(plan.holds.shape)
-    for n, net in enumerate(nets):
-        thresholds[n, plan.where[n]] = [net.threshold[k] for k in net.features]
-    states = [np.full((count, len(net.features)), -1, dtype=np.int64) for net in nets]
-    evaluated = [engine(net).evaluate(state[0]) for net, state in zip(nets, states)]
-    belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))
-    informative = np.tile(np.concatenate([e[1] for e in evaluated]) if keys else np.zeros(0), (count, 1))
-    asked = np.zeros(informative.shape, dtype=bool)
-    first = dict(zip(labels, [e[0] for e in evaluated]))
-    beliefs = [[dict(first)] for _ in range(count)]
-    queried = [[] for _ in range(count)]
-    measured = [{} for _ in range(count)]
-    active = np.arange(count) if len(slot_key) else np.zeros(0, dtype=np.int64)
+    block = _Block(plan, values.shape[1])
+    active = np.arange(block.count) if len(plan.slot_key) else np.zeros(0, dtype=np.int64)
     while len(active):
-        rows = informative[active]
+        rows = block.informative[active]
         slot = rows.argmax(1)
         go = rows[np.arange(len(active)), slot] > tolerance
         active, slot = active[go], slot[go]
-        if not len(active):
-            break
-        best = slot_key[slot]
-        mask = plan.key_slots[best]
-        asked[active] |= mask
-        informative[active] = np.where(mask, 0.0, informative[active])
-        value = values[best, active]
-        for b, k, v in zip(active.tolist(), best.tolist(), value.tolist()):
-            queried[b].append(keys[k])
-            measured[b][keys[k]] = v
-        holding = plan.holds[:, best]
-        for n in np.flatnonzero(holding.any(1)).tolist():  # the networks that hold some image's query
-            net, held = nets[n], holding[n]
-            images, nodes = active[held], best[held]
-            present = value[held] > thresholds[n, nodes]
-            if positive_only:
-                images, nodes, present = images[present], nodes[present], present[present]
-                if not len(images):
-                    continue
-            trial = states[n][images]
-            trial[np.arange(len(images)), plan.position[n, nodes]] = present
-            inference = engine(net)
-            results = [inference.evaluate(row) for row in trial]
-            posterior = np.array([r[0] for r in results])
-            possible = posterior == posterior  # not NaN: the evidence is possible
-            if not possible.all():
-                images, trial, posterior = images[possible], trial[possible], posterior[possible]
-                results = [r for r, ok in zip(results, possible.tolist()) if ok]
-                if not len(images):
-                    continue
-            states[n][images], belief[images, n] = trial, posterior
-            span = slice(start[n], start[n + 1])
-            informative[images, span] = np.where(asked[images, span], 0.0, np.stack([r[1] for r in results]))
-        for b, row in zip(active.tolist(), belief[active].tolist()):
-            beliefs[b].append(dict(zip(labels, row)))
-    out = []
-    for b in range(count):
-        posteriors = beliefs[b][-1]
-        out.append(Recognition(posteriors, {c for c, p in posteriors.items() if p > 0.5}, queried[b], measured[b], beliefs[b]))
+        if len(active):
+            block.query(active, plan.slot_key[slot], values, positive_only)
+    out = [Recognition(b[-1], {c for c, p in b[-1].items() if p > 0.5}, q, m, b)
+           for b, q, m in zip(block.beliefs, block.queried, block.measured)]
     if top:
         index = plan.index
         for b, rec in enumerate(out):
             rec.top = top_class(networks, rec, lambda key, b=b: float(values[index[key], b]), plan, positive_only)
     return out
+
+
+class _Block:
+    """The state of :func:`recognize_block`'s images side by side: evidence states (B, nodes) per network,
+    beliefs (B, networks), informations (B, slots), the slots asked, and each image's trace."""
+
+    def __init__(self, plan: Plan, count: int):
+        self.plan, self.count, nets = plan, count, plan.nets
+        self.thresholds = np.zeros(plan.holds.shape)
+        for n, net in enumerate(nets):
+            self.thresholds[n, plan.where[n]] = [net.threshold[k] for k in net.features]
+        self.states = [np.full((count, len(net.features)), -1, dtype=np.int64) for net in nets]
+        evaluated = [engine(net).evaluate(state[0]) for net, state in zip(nets, self.states)]
+        self.belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))
+        self.informative = np.tile(np.concatenate([e[1] for e in evaluated]) if plan.keys else np.zeros(0), (count, 1))
+        self.asked = np.zeros(self.informative.shape, dtype=bool)
+        first = dict(zip(plan.labels, [e[0] for e in evaluated]))
+        self.beliefs: list[list[dict]] = [[dict(first)] for _ in range(count)]
+        self.queried: list[list] = [[] for _ in range(count)]
+        self.measured: list[dict] = [{} for _ in range(count)]
+
+    def query(self, active: np.ndarray, best: np.ndarray, values: np.ndarray, positive_only: bool) -> None:
+        """One step of alg. 4.4 for the images ``active``: each measures its feature ``best`` (key positions),
+        and every network that holds it takes the evidence."""
+        plan, keys = self.plan, self.plan.keys
+        mask = plan.key_slots[best]
+        self.asked[active] |= mask
+        self.informative[active] = np.where(mask, 0.0, self.informative[active])
+        value = values[best, active]
+        for b, k, v in zip(active.tolist(), best.tolist(), value.tolist()):
+            self.queried[b].append(keys[k])
+            self.measured[b][keys[k]] = v
+        holding = plan.holds[:, best]
+        for n in np.flatnonzero(holding.any(1)).tolist():  # the networks that hold some image's query
+            held = holding[n]
+            self.enter(n, active[held], best[held], value[held] > self.thresholds[n, best[held]], positive_only)
+        for b, row in zip(active.tolist(), self.belief[active].tolist()):
+            self.beliefs[b].append(dict(zip(plan.labels, row)))
+
+    def enter(self, n: int, images: np.ndarray, nodes: np.ndarray, present: np.ndarray, positive_only: bool) -> None:
+        """Network ``n`` takes the presence of its ``nodes`` (key positions) in ``images``, where the evidence
+        is possible (only presence with ``positive_only``): new states, beliefs and informations."""
+        plan = self.plan
+        if positive_only:
+            images, nodes, present = images[present], nodes[present], present[present]
+            if not len(images):
+                return
+        trial = self.states[n][images]
+        trial[np.arange(len(images)), plan.position[n, nodes]] = present
+        inference = engine(plan.nets[n])
+        results = [inference.evaluate(row) for row in trial]
+        posterior = np.array([r[0] for r in results])
+        possible = posterior == posterior  # not NaN: the evidence is possible
+        if not possible.all():
+            images, trial, posterior = images[possible], trial[possible], posterior[possible]
+            results = [r for r, ok in zip(results, possible.tolist()) if ok]
+            if not len(images):
+                return
+        self.states[n][images], self.belief[images, n] = trial, posterior
+        span = slice(plan.start[n], plan.start[n + 1])
+        self.informative[images, span] = np.where(self.asked[images, span], 0.0, np.stack([r[1] for r in results]))
