@@ -62,7 +62,7 @@ class Memo:
     of their features, each entry keeping its features alive, so that their ids cannot be reused
     while it is remembered."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.arrays: OrderedDict = OrderedDict()  # (digest, xz) -> block
         self.features: OrderedDict = OrderedDict()  # ids of a chunk's features -> (the features, the block)
 
@@ -103,14 +103,14 @@ def _inflate(text, size: int) -> bytes:
         raise ValueError(f"declares {size} bytes, more than the {MAX_BYTES} a checkpoint may hold")
     packed = base64.b64decode(text, validate=True)
     if packed.startswith(XZ_MAGIC):
-        inflater = lzma.LZMADecompressor(format=lzma.FORMAT_XZ)
-        raw = inflater.decompress(packed, size + 1)
-        rest = inflater.unused_data
+        xz = lzma.LZMADecompressor(format=lzma.FORMAT_XZ)
+        raw = xz.decompress(packed, size + 1)
+        rest, eof = xz.unused_data, xz.eof
     else:
-        inflater = zlib.decompressobj()
-        raw = inflater.decompress(packed, size + 1)
-        rest = inflater.unconsumed_tail
-    if len(raw) != size or rest or not inflater.eof:
+        deflate = zlib.decompressobj()
+        raw = deflate.decompress(packed, size + 1)
+        rest, eof = deflate.unconsumed_tail, deflate.eof
+    if len(raw) != size or rest or not eof:
         raise ValueError(f"holds other than the {size} bytes it declares")
     return raw
 
@@ -130,7 +130,7 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None, memo: M
         if all(np.array_equal(small[s : s + SLICE].astype("<f8").view("<i8"), wide[s : s + SLICE])
                for s in range(0, wide.size, SLICE)):
             data = narrow
-    state = {"shape": list(data.shape), "dtype": data.dtype.str}
+    state: dict[str, object] = {"shape": list(data.shape), "dtype": data.dtype.str}
     if reference is not None:
         data = data.view(_BITS[data.dtype.str]) ^ _reference(reference, data.shape, data.dtype)
         state["relative"] = True
@@ -140,7 +140,7 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None, memo: M
     return state
 
 
-_BITS = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integers holding each float's bits
+_BITS: dict[str, np.dtype] = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integers holding each float's bits
 
 
 def _reference(reference: np.ndarray, shape: tuple, dtype: np.dtype) -> np.ndarray:
@@ -172,10 +172,11 @@ def decode_array(data: dict, reference: np.ndarray | None = None, shape: tuple |
             raise ValueError(f"{len(blocks) if isinstance(blocks, list) else 'no'} blocks for {n_rows} rows")
         if n_rows * row_values * dtype.itemsize > MAX_BYTES:
             raise ValueError(f"declares {n_rows * row_values * dtype.itemsize} bytes, more than the {MAX_BYTES} a checkpoint may hold")
-        relative = data.get("relative", False)
-        if relative is not False and (relative is not True or reference is None):
-            raise ValueError("written relative to values that are not given")
-        bits = _reference(reference, declared, dtype).reshape(n_rows, row_values) if relative else None
+        relative, bits = data.get("relative", False), None
+        if relative is not False:
+            if relative is not True or reference is None:
+                raise ValueError("written relative to values that are not given")
+            bits = _reference(reference, declared, dtype).reshape(n_rows, row_values)
         out = np.empty((n_rows, row_values), np.float64)
         for k, block in enumerate(blocks):
             rows = slice(k * ROWS, min((k + 1) * ROWS, n_rows))

@@ -17,14 +17,15 @@ would give under that drawing rule.
 """
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from enum import StrEnum
 
 import torch
 
 from ..errors import InputError
-from ..space.features import Conjunction, Disjunction, LocalFeature, Within
+from ..space.features import Conjunction, Disjunction, Feature, LocalFeature, Within
 from ..space.generate import expand_geometric, localize, random_edgel_pair, random_texel, random_texture
+from ..space.record import ImageRecords
 from ..space.region import Frame
 from .bayes import ClassNetwork
 from .environment import ImageSet
@@ -53,7 +54,8 @@ class Primitive(StrEnum):
 
 
 THESIS_PRIMITIVES = (Primitive.TEXEL, Primitive.EDGEL)
-_SAMPLERS = {Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
+_SAMPLERS: dict[Primitive, Callable[[ImageRecords, int, torch.Generator | None], Feature | None]] = {
+    Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
 
 
 def primitive_set(value) -> tuple[Primitive, ...]:

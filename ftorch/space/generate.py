@@ -21,7 +21,7 @@ from .evaluate import feature_values
 from .features import Feature, Geometric, LocalFeature, Part, Texel, Texture, Within
 from .primitives import PartKind
 from .record import ImageRecords
-from .region import Frame, Region, frame_coordinates
+from .region import Frame, Region, as_frame, frame_coordinates
 from .sampling import placements, sample_texture, steered_sample
 from .texture import level_sigma
 
@@ -59,7 +59,7 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     _, (x, y, sigma, theta) = placements(previous, [attitude])
     image = torch.tensor([n], device=records.device)
     vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
-    return Part(kind, vector[0].tolist(), *attitude)
+    return Part(kind, tuple(vector[0].tolist()), *attitude)
 
 
 def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
@@ -70,11 +70,11 @@ def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor,
                          level_sigma(int(records.grid_level[n, q])), float(previous[3]))
     _, (x, y, sigma, _) = placements(previous, [attitude])
     vector, _ = sample_texture(records, torch.tensor([n], device=records.device), x[None], y[None], sigma[None])
-    return Part(PartKind.TEXTURE, vector[0].tolist(), *attitude)
+    return Part(PartKind.TEXTURE, tuple(vector[0].tolist()), *attitude)
 
 
-def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
-    return records.canonical[n, p, _part_kind(records, n, p).slots].tolist()
+def _own_vector(records: ImageRecords, n: int, p: int) -> tuple[float, ...]:
+    return tuple(records.canonical[n, p, _part_kind(records, n, p).slots].tolist())
 
 
 def random_texel(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texel | None:
@@ -92,7 +92,7 @@ def random_texture(records: ImageRecords, n: int, generator: torch.Generator | N
     if level is None:
         return None
     q = _choose((points & (records.grid_level[n] == level)).nonzero()[:, 0].cpu(), generator)
-    return Texture(level_sigma(level), records.histograms[n, q].tolist())
+    return Texture(level_sigma(level), tuple(records.histograms[n, q].tolist()))
 
 
 def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator | None = None,
@@ -177,7 +177,7 @@ def localize(feature: Feature, records: ImageRecords, n: int, frame: Frame | str
     at its strongest occurrence inside that region: narrowing it is the caller's choice of ``radius``.
     None where image n gives no location (value 0) or, in the object frame, has no object frame.
     """
-    disc = Region(frame, 0.0, 0.0, radius)  # the frame and radius checked before anything is measured
+    disc = Region(as_frame(frame), 0.0, 0.0, radius)  # the frame and radius checked before anything is measured
     occurrence = _occurrence(feature, records, n, located)
     if occurrence is None:
         return None

@@ -79,8 +79,8 @@ class Pyramid:
     def cat(pyramids: Sequence["Pyramid"]) -> "Pyramid":
         """One pyramid of several, padded with zeros to the largest height, width and level count."""
         dtype = functools.reduce(torch.promote_types, [p.first.dtype for p in pyramids])
-        out = Pyramid.zeros(sum(len(p) for p in pyramids), *(max(p.first.shape[d] for p in pyramids) for d in (1, 2, 3)),
-                            dtype, pyramids[0].first.device)
+        height, width, entries = (max(p.first.shape[d] for p in pyramids) for d in (1, 2, 3))
+        out = Pyramid.zeros(sum(len(p) for p in pyramids), height, width, entries, dtype, pyramids[0].first.device)
         start = 0
         for p in pyramids:
             out.put(start, p)
@@ -132,7 +132,7 @@ class ImageRecords:
     grid_mask: Tensor
     histograms: Tensor
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         # the reference points of each part kind or texture level, found once per records object
         # by the feature values (ftorch/space/evaluate.py), and the images' object frames
         # (ftorch/space/region.py); records are never changed in place
@@ -300,7 +300,7 @@ class FeatureSpace(nn.Module):
     def _texture(self, images: Tensor, space: ScaleSpaceOutput) -> tuple[Tensor, ...]:
         return self.texture(images[:, 0].to(space.responses.dtype), space.responses.shape[1])
 
-    def _pyramid_layout(self, shapes: Sequence[tuple[int, int]]) -> tuple[int, int, int]:
+    def _pyramid_layout(self, shapes: Sequence[tuple[int, ...]]) -> tuple[int, int, int]:
         """(height, width, S+3 entries) of the joined pyramid of images of these (H, W) shapes."""
         height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
         return height, width, max(self.scale_space.num_levels(*shape) for shape in shapes) + 3
@@ -353,7 +353,9 @@ class FeatureSpace(nn.Module):
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
         # each batch's responses are written straight into the joined pyramid, so that building
         # holds one set of tables, not two
-        parts, order, pyramid = [], [], None
+        parts: list[ImageRecords] = []
+        order: list[int] = []
+        pyramid: Pyramid | None = None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
             batch = torch.stack([loaded[i] for i in idx])
             space = self.scale_space(contrast_normalized(batch))

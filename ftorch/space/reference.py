@@ -131,11 +131,13 @@ def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: floa
             theta += part.dtheta
             sigma *= part.dsigma
         if part.kind == "texture":
+            if grid is None:
+                raise ValueError("a texture part is sampled from the image's texture grid: pass texture_grid(records, n)")
             measured = _texture_sample(grid, x, y, sigma)
             if measured is None:
                 return None
             stored = np.array(part.vector)
-            cosine = float(measured @ stored) / (np.linalg.norm(measured) * np.linalg.norm(stored))
+            cosine = float(measured @ stored) / float(np.linalg.norm(measured) * np.linalg.norm(stored))
             coefficient *= min(1.0, max(0.0, cosine))
             continue
         measured = _measure(pyramid, x, y, sigma, theta, part.kind)
@@ -194,7 +196,7 @@ def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tu
     if isinstance(feature, Texture):
         return texture_value(feature, records, n, regions)
     if not isinstance(feature, LocalFeature):
-        a, b = reference_value(feature.a, records, n, regions), reference_value(feature.b, records, n, regions)
+        a, b = (reference_value(sub, records, n, regions) for sub in feature.subfeatures())
         return a * b if isinstance(feature, Conjunction) else max(a, b)
     levels = int(records.levels[n])
     height, width = (int(v) for v in records.sizes[n])

@@ -169,8 +169,8 @@ class GridLayout(NamedTuple):
             present = offset < q
             columns = torch.where(present, torch.round((extreme(records.grid_x, "amax") - x0) / step.repeat(n)) + 1, 0)
             rows = torch.where(present, torch.round((extreme(records.grid_y, "amax") - y0) / step.repeat(n)) + 1, 0)
-            known[TEXTURE_GRID] = GridLayout(*(t.view(n, levels) for t in (offset, x0, y0, columns.long(), rows.long())),
-                                             step)
+            offset, x0, y0, columns, rows = (t.view(n, levels) for t in (offset, x0, y0, columns.long(), rows.long()))
+            known[TEXTURE_GRID] = GridLayout(offset, x0, y0, columns, rows, step)
         return known[TEXTURE_GRID]
 
 

@@ -58,7 +58,7 @@ def _ieee_convolutions(device: torch.device):
     if device.type != "cuda":
         yield
         return
-    conv = torch.backends.cudnn.conv
+    conv = torch.backends.cudnn.conv  # type: ignore[attr-defined]  # torch declares the module's other flags, not conv
     saved = conv.fp32_precision
     conv.fp32_precision = "ieee"
     try:
@@ -206,6 +206,7 @@ class ScaleSpace(nn.Module):
         """:meth:`_band_matrices` of level k."""
         kern = getattr(self, f"kernels_{k}").cpu().numpy()
         radius = (kern.shape[1] - 1) // 2
+        horizontal: Tensor | list[tuple[int, int, int, int, Tensor]]
         if width <= DENSE_WIDTH:
             horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
             horizontal = horizontal.to(device=device, dtype=dtype)
@@ -214,8 +215,8 @@ class ScaleSpace(nn.Module):
             for a in range(0, width, _tile(radius)):
                 b = min(a + _tile(radius), width)
                 c0, c1 = band_span(a, b, radius, width)
-                block = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
-                block = torch.from_numpy(block.reshape(c1 - c0, 3 * (b - a)))
+                columns = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
+                block = torch.from_numpy(columns.reshape(c1 - c0, 3 * (b - a)))
                 horizontal.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
         tiles = []
         for a in range(0, height, _tile(radius)):
