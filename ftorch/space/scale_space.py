@@ -3,12 +3,12 @@
 For an image whose shorter side is m pixels the levels are sigma_k = 2^(k/2), k = 0..K, with
 sigma_K <= m/4 (DESIGN.md). At each level the five steerable basis responses (G1@0, G1@pi/2,
 G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels, in one of two ways
-(:class:`Pyramid`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
+(:class:`FilterMethod`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
 
-- ``Pyramid.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
+- ``FilterMethod.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
   the boundary folded in, so all images, levels and kernels of one pass are a few large GEMMs
   (tiled by output rows, and beyond ``DENSE_WIDTH`` columns by output columns: see there).
-- ``Pyramid.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
+- ``FilterMethod.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
   of the level's three kernels g, g', g'' across the rows and a (k, 1) bank of the same three
   down the columns, the three horizontal maps folded into the batch (one plain call measured
   faster on the CPU than a grouped call with two kernels per group, though it computes 9 maps
@@ -99,7 +99,7 @@ def _horizontal_pass(rows: Tensor, horizontal) -> Tensor:
     return out
 
 
-class Pyramid(StrEnum):
+class FilterMethod(StrEnum):
     """How :class:`ScaleSpace` runs its separable passes (the module docstring says why BAND is the default)."""
 
     BAND = "band"  # products with band matrices that have the reflecting boundary folded in
@@ -128,12 +128,12 @@ class ScaleSpace(nn.Module):
 
     ``truncate``: kernel radius in sigmas (radius = int(truncate*sigma + 0.5)); a point at level k
     is inside the image's valid region when the level-k kernel fits entirely inside the image.
-    ``method``: :class:`Pyramid` or its value ('band', 'conv'); both give the same responses to
+    ``method``: :class:`FilterMethod` or its value ('band', 'conv'); both give the same responses to
     rounding. Kernels live in buffers and follow ``.to(device)``; the band matrices or conv2d
     weights built from them are cached per (size, device, dtype).
     """
 
-    def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: Pyramid | str = Pyramid.BAND):
+    def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: FilterMethod | str = FilterMethod.BAND):
         super().__init__()
         if not truncate > 0:
             raise InputError(f"truncate must be positive, got {truncate}")
@@ -147,15 +147,15 @@ class ScaleSpace(nn.Module):
         self._convs: dict = {}
 
     @property
-    def method(self) -> Pyramid:
+    def method(self) -> FilterMethod:
         return self._method
 
     @method.setter
-    def method(self, value: Pyramid | str) -> None:
+    def method(self, value: FilterMethod | str) -> None:
         try:
-            self._method = Pyramid(value)
+            self._method = FilterMethod(value)
         except ValueError:
-            raise InputError(f"method must be one of {', '.join(Pyramid)}, got {value!r}") from None
+            raise InputError(f"method must be one of {', '.join(FilterMethod)}, got {value!r}") from None
 
     @staticmethod
     def sigma(level: float) -> float:
@@ -241,7 +241,7 @@ class ScaleSpace(nn.Module):
         itemsize = torch.empty(0, dtype=dtype).element_size()
         total = 0
         for k, radius in enumerate(self.radii(levels)):
-            if self._method is Pyramid.CONV:
+            if self._method is FilterMethod.CONV:
                 total += 8 * (height + width + 4 * radius) + 6 * (2 * radius + 1) * itemsize
                 continue
             if width <= DENSE_WIDTH:
@@ -267,7 +267,7 @@ class ScaleSpace(nn.Module):
 
     def forward(self, images) -> ScaleSpaceOutput:
         x = as_image_batch(images)[:, 0]
-        if self._method is Pyramid.CONV:
+        if self._method is FilterMethod.CONV:
             return self._forward_conv(x)
         batch, height, width = x.shape
         levels = self.num_levels(height, width)
