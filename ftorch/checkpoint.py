@@ -4,9 +4,10 @@ A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 4, 
 are written as Python's shortest exact repr; arrays as zlib-compressed little-endian float32
 where that holds every value exactly (feature values are computed in float32), else float64,
 in base64 blocks of ``ROWS`` rows (a block unchanged since the last checkpoint is not compressed
-again); long texts (feature tables) as xz-compressed UTF-8 in base64: the repeated structure of
-compound features' JSON shrinks 2-3x more with xz at its fastest preset than with zlib, in the same
-time, while float arrays gain about 10% at 3x zlib's time. An array that mostly repeats another
+again); long texts (feature tables) as xz-compressed UTF-8 in base64: xz at its fastest preset
+shrinks the repeated structure of compound features' JSON far more than zlib in about zlib's time,
+while float arrays gain little from it at several times the cost (docs/benchmark.md, "Design
+choices measured once"). An array that mostly repeats another
 one the reader holds too (the instance list's values are those of the value cache) is written
 relative to it: the XOR of the two arrays' bits, zero where they agree, which compresses to almost
 nothing and restores exactly (version 4). Versions 2 (texts in zlib) and 3 still read: a block's

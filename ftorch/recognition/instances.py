@@ -94,7 +94,8 @@ class InstanceList:
 
     def values_table(self) -> np.ndarray:
         """All values (instances, features), NaN where not measured: the stored table transposed,
-        copied 128 features at a time (4x faster than one transposed copy at 200 x 108,229)."""
+        copied 128 features at a time (faster than one transposed copy: docs/benchmark.md, "Design
+        choices measured once")."""
         values = self._values
         out = np.empty(values.shape[::-1])
         for s in range(0, len(values), 128):

@@ -233,18 +233,41 @@ def _texture_fields(features: list[Texture], records: ImageRecords, max_elements
 
 
 def feature_values(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
-    """Values (F, N) of ``features`` in every image of ``records`` and where each is strongest.
+    """Values of ``features`` in every image of ``records`` (eq. 3.14) and where each is strongest.
 
     All local features (texels, geometric compounds, textures, the leaves of Boolean compounds)
-    are evaluated once each (once per set of regions around them), batched by structure;
-    ``max_elements`` bounds the gathered tensors.
+    are evaluated once each (once per set of regions around them), batched by structure.
+
+    Args:
+        features: F features of any types.
+        records: the records of N images.
+        max_elements: a bound on the elements of the gathered tensors (features are chunked to it).
+
+    Returns:
+        the values in [0, 1] (0 where an image has no applicable reference point) and the x, y,
+        sigma, theta of the maximising point (NaN where none), in the records' dtype and device.
+
+    Shape:
+        - Output: :class:`FeatureValues`, each field :math:`(F, N)`.
     """
     return FeatureValues(*_evaluate(features, records, max_elements, located=True))
 
 
 def values_only(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> Tensor:
-    """``feature_values(features, records).values`` (F, N), the same numbers, without finding
-    where each is reached: what the learners measure."""
+    """``feature_values(features, records).values``, the same numbers, without finding where each
+    is reached: what the learners measure.
+
+    Args:
+        features: F features of any types.
+        records: the records of N images.
+        max_elements: a bound on the elements of the gathered tensors.
+
+    Returns:
+        the values in [0, 1].
+
+    Shape:
+        - Output: :math:`(F, N)`.
+    """
     return _evaluate(features, records, max_elements, located=False)[0]
 
 

@@ -272,6 +272,15 @@ class FeatureSpace(nn.Module):
 
     ``forward`` takes one batch of equal-sized images; :meth:`records` takes any sequence of
     images, arrays or file paths of mixed sizes and returns them as one padded batch in order.
+
+    Args:
+        truncate: kernel radius in sigmas (:class:`~ftorch.space.scale_space.ScaleSpace`).
+        rel_threshold: the salient points' relative threshold (:class:`~ftorch.space.salient.SalientPoints`).
+
+    Shape:
+        - Input: :math:`(B, C, H, W)` (C = 1 grey or 3 RGB), :math:`(B, H, W)` or :math:`(H, W)`.
+        - Output: :class:`ImageRecords` of B images, per point :math:`(B, P)` (P the most points of
+          any image), descriptors :math:`(B, P, 15)`, per texture grid point :math:`(B, Q)`.
     """
 
     def __init__(self, truncate: float = 3.0, rel_threshold: float = 1e-2):
@@ -328,8 +337,22 @@ class FeatureSpace(nn.Module):
 
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:
-        """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
-        name the images in errors (default: the file path, or images[i])."""
+        """Records of images of any sizes, computed in batches of one size and joined in order.
+
+        Args:
+            images: files, arrays or tensors, each one image (``ftorch.images.as_image``), or one
+                array of several.
+            batch_size: the most images computed at once.
+            progress: show a progress bar.
+            names: the images' names in errors (default: the file path, or images[i]).
+
+        Returns:
+            the records of all images, padded to the largest size and point count.
+
+        Shape:
+            - images: N images, each of its own :math:`(H_i, W_i)`, grey or colour (``as_image``'s rules).
+            - Output: :class:`ImageRecords` of N images.
+        """
         if isinstance(images, (np.ndarray, torch.Tensor)):  # one array: its images, by the rules of as_image_batch
             images = list(as_image_batch(images))
         if len(images) == 0:

@@ -47,6 +47,17 @@ class Points:
 
 
 class SalientPoints(nn.Module):
+    """The salient edgels and texels of a batch's scale space (the module docstring's rules).
+
+    Args:
+        rel_threshold: the fraction of an image's strongest maximum below which maxima are dropped.
+        min_response: the basis-response magnitude a point needs somewhere (flat images have none).
+
+    Shape:
+        - Input: :class:`~ftorch.space.scale_space.ScaleSpaceOutput` of B images, S levels.
+        - Output: :class:`Points`, each field :math:`(P,)` for the P points of all images, ordered by image.
+    """
+
     def __init__(self, rel_threshold: float = 1e-2, min_response: float = 1e-5):
         super().__init__()
         self.rel_threshold = float(rel_threshold)

@@ -10,15 +10,15 @@ G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels, in one of
   (tiled by output rows, and beyond ``DENSE_WIDTH`` columns by output columns: see there).
 - ``FilterMethod.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
   of the level's three kernels g, g', g'' across the rows and a (k, 1) bank of the same three
-  down the columns, the three horizontal maps folded into the batch (one plain call measured
-  faster on the CPU than a grouped call with two kernels per group, though it computes 9 maps
-  for the 5 needed). The padding is gathered by index, as torch's own 'reflect' pad leaves the
+  down the columns, the three horizontal maps folded into the batch (one plain call, though it
+  computes 9 maps for the 5 needed: a grouped call with two kernels per group is slower on the
+  CPU, docs/benchmark.md). The padding is gathered by index, as torch's own 'reflect' pad leaves the
   edge pixel out.
 
 Both compute the same sums as a direct convolution, in different orders: they agree with scipy to
 1e-12 in float64 (tested) but not bit for bit with each other in float32. The band matrices stay
 the default for two reasons: they are faster on the CPU (``python -m training.bench features``
-times both on 32 images of 128x128, 11 levels; the figures are in docs/benchmark.md), and the
+times both; docs/benchmark.md, "Feature space and exact inference"), and the
 project's reports are kept byte for byte, which another summation order would break.
 """
 from __future__ import annotations
@@ -131,6 +131,17 @@ class ScaleSpace(nn.Module):
     ``method``: :class:`FilterMethod` or its value ('band', 'conv'); both give the same responses to
     rounding. Kernels live in buffers and follow ``.to(device)``; the band matrices or conv2d
     weights built from them are cached per (size, device, dtype).
+
+    Args:
+        truncate: kernel radius in sigmas.
+        max_levels: the most levels an image may have (kernels are built for these).
+        method: how the separable passes run (:class:`FilterMethod`).
+
+    Shape:
+        - Input: :math:`(B, C, H, W)` (C = 1 grey or 3 RGB), :math:`(B, H, W)` or :math:`(H, W)`
+          (:func:`~ftorch.images.as_image_batch`).
+        - Output: :class:`ScaleSpaceOutput` with responses :math:`(B, S, 5, H, W)`, sigmas
+          :math:`(S,)` and valid :math:`(S, H, W)`, S = :meth:`num_levels` of (H, W).
     """
 
     def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: FilterMethod | str = FilterMethod.BAND):
