@@ -4,9 +4,10 @@ A checkpoint is one JSON object {"format": "ftorch", "kind": ..., "version": 4, 
 are written as Python's shortest exact repr; arrays as zlib-compressed little-endian float32
 where that holds every value exactly (feature values are computed in float32), else float64,
 in base64 blocks of ``ROWS`` rows (a block unchanged since the last checkpoint is not compressed
-again); long texts (feature tables) as xz-compressed UTF-8 in base64: the repeated structure of
-compound features' JSON shrinks 2-3x more with xz at its fastest preset than with zlib, in the same
-time, while float arrays gain about 10% at 3x zlib's time. An array that mostly repeats another
+again); long texts (feature tables) as xz-compressed UTF-8 in base64: xz at its fastest preset
+shrinks the repeated structure of compound features' JSON far more than zlib in about zlib's time,
+while float arrays gain little from it at several times the cost (docs/benchmark.md, "Design
+choices measured once"). An array that mostly repeats another
 one the reader holds too (the instance list's values are those of the value cache) is written
 relative to it: the XOR of the two arrays' bits, zero where they agree, which compresses to almost
 nothing and restores exactly (version 4). Versions 2 (texts in zlib) and 3 still read: a block's
@@ -62,7 +63,7 @@ class Memo:
     of their features, each entry keeping its features alive, so that their ids cannot be reused
     while it is remembered."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.arrays: OrderedDict = OrderedDict()  # (digest, xz) -> block
         self.features: OrderedDict = OrderedDict()  # ids of a chunk's features -> (the features, the block)
 
@@ -103,14 +104,14 @@ def _inflate(text, size: int) -> bytes:
         raise ValueError(f"declares {size} bytes, more than the {MAX_BYTES} a checkpoint may hold")
     packed = base64.b64decode(text, validate=True)
     if packed.startswith(XZ_MAGIC):
-        inflater = lzma.LZMADecompressor(format=lzma.FORMAT_XZ)
-        raw = inflater.decompress(packed, size + 1)
-        rest = inflater.unused_data
+        xz = lzma.LZMADecompressor(format=lzma.FORMAT_XZ)
+        raw = xz.decompress(packed, size + 1)
+        rest, eof = xz.unused_data, xz.eof
     else:
-        inflater = zlib.decompressobj()
-        raw = inflater.decompress(packed, size + 1)
-        rest = inflater.unconsumed_tail
-    if len(raw) != size or rest or not inflater.eof:
+        deflate = zlib.decompressobj()
+        raw = deflate.decompress(packed, size + 1)
+        rest, eof = deflate.unconsumed_tail, deflate.eof
+    if len(raw) != size or rest or not eof:
         raise ValueError(f"holds other than the {size} bytes it declares")
     return raw
 
@@ -130,7 +131,7 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None, memo: M
         if all(np.array_equal(small[s : s + SLICE].astype("<f8").view("<i8"), wide[s : s + SLICE])
                for s in range(0, wide.size, SLICE)):
             data = narrow
-    state = {"shape": list(data.shape), "dtype": data.dtype.str}
+    state: dict[str, object] = {"shape": list(data.shape), "dtype": data.dtype.str}
     if reference is not None:
         data = data.view(_BITS[data.dtype.str]) ^ _reference(reference, data.shape, data.dtype)
         state["relative"] = True
@@ -140,7 +141,7 @@ def encode_array(array: np.ndarray, reference: np.ndarray | None = None, memo: M
     return state
 
 
-_BITS = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integers holding each float's bits
+_BITS: dict[str, np.dtype] = {"<f4": np.dtype("<u4"), "<f8": np.dtype("<u8")}  # the unsigned integers holding each float's bits
 
 
 def _reference(reference: np.ndarray, shape: tuple, dtype: np.dtype) -> np.ndarray:
@@ -172,10 +173,11 @@ def decode_array(data: dict, reference: np.ndarray | None = None, shape: tuple |
             raise ValueError(f"{len(blocks) if isinstance(blocks, list) else 'no'} blocks for {n_rows} rows")
         if n_rows * row_values * dtype.itemsize > MAX_BYTES:
             raise ValueError(f"declares {n_rows * row_values * dtype.itemsize} bytes, more than the {MAX_BYTES} a checkpoint may hold")
-        relative = data.get("relative", False)
-        if relative is not False and (relative is not True or reference is None):
-            raise ValueError("written relative to values that are not given")
-        bits = _reference(reference, declared, dtype).reshape(n_rows, row_values) if relative else None
+        relative, bits = data.get("relative", False), None
+        if relative is not False:
+            if relative is not True or reference is None:
+                raise ValueError("written relative to values that are not given")
+            bits = _reference(reference, declared, dtype).reshape(n_rows, row_values)
         out = np.empty((n_rows, row_values), np.float64)
         for k, block in enumerate(blocks):
             rows = slice(k * ROWS, min((k + 1) * ROWS, n_rows))

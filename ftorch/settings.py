@@ -3,8 +3,8 @@
 replacing options with one error naming an unknown one, and the device a learner computes on."""
 from __future__ import annotations
 
-from dataclasses import field, fields, replace
-from typing import ClassVar
+from dataclasses import Field, field, fields, replace
+from typing import Any, ClassVar
 
 import torch
 
@@ -41,6 +41,7 @@ class Settings:
     learner in errors."""
 
     WHAT: ClassVar[str] = "learner"
+    __dataclass_fields__: ClassVar[dict[str, Field[Any]]]  # every subclass is a dataclass
 
     def replace(self, **changes):
         """These settings with ``changes``; InputError naming an unknown option."""

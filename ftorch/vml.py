@@ -4,10 +4,10 @@ On CPU, torch routes contiguous float unary ops (``sqrt``, ``exp``, ``log``, ``s
 oneMKL's VML, each intra-op thread on its own chunk. oneMKL picks each function's kernel lazily
 on its first call; when that first call runs on several threads at once, one thread may run a
 low-accuracy kernel over its whole chunk (pytorch/pytorch#188792, oneMKL 2024.2 as bundled in
-the torch wheels). Here that made ``torch.sqrt`` in s_edge (eq. 3.11) wrong by up to 3e-4
-(relative) over half of the first record batch in about one fresh process in three, so the
-salient points, and with them a whole run, changed from one process to the next with the same
-seed. Calling every VML function once on one element, in one thread, when ftorch is imported
+the torch wheels). Here that made ``torch.sqrt`` in s_edge (eq. 3.11) wrong over the first
+record batch in some fresh processes (how often and by how much: docs/decisions.md, "Exact float
+ops in every process"), so the salient points, and with them a whole run, changed from one
+process to the next with the same seed. Calling every VML function once on one element, in one thread, when ftorch is imported
 settles the choice before any parallel call; later calls are unchanged, and where torch has no
 MKL the calls are merely cheap.
 """

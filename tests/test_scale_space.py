@@ -9,13 +9,13 @@ import torch
 from ftorch import InputError, ScaleSpace
 from ftorch.space.kernels import kernel_radius
 from ftorch.space.reference import scipy_basis
-from ftorch.space.scale_space import Pyramid
+from ftorch.space.scale_space import FilterMethod
 from ftorch.space.steering import steer, steer_block
 
 from .conftest import random_image
 
 
-@pytest.mark.parametrize("method", list(Pyramid))
+@pytest.mark.parametrize("method", list(FilterMethod))
 def test_responses_equal_scipy_everywhere_in_float64(method):
     image = random_image(40, 52, seed=1)
     out = ScaleSpace(method=method)(image)
@@ -25,7 +25,7 @@ def test_responses_equal_scipy_everywhere_in_float64(method):
         np.testing.assert_allclose(out.responses[0, k].numpy(), expected, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("method", list(Pyramid))
+@pytest.mark.parametrize("method", list(FilterMethod))
 def test_responses_equal_scipy_on_interior_in_float32(method):
     """Tolerance: 2e-6 of the level's largest response, on pixels where the kernel fits."""
     image = random_image(64, 64, seed=2, dtype=torch.float32)
@@ -65,13 +65,13 @@ def test_an_unknown_method_is_an_input_error(method):
     space = ScaleSpace()
     with pytest.raises(InputError, match="method must be one of band, conv"):
         space.method = method
-    assert space.method is Pyramid.BAND
+    assert space.method is FilterMethod.BAND
 
 
 def test_the_default_method_is_the_band_matrices():
-    assert ScaleSpace().method is Pyramid.BAND
+    assert ScaleSpace().method is FilterMethod.BAND
     space = ScaleSpace(method="conv")
-    assert space.method is Pyramid.CONV and isinstance(space.method, Pyramid)
+    assert space.method is FilterMethod.CONV and isinstance(space.method, FilterMethod)
 
 
 def test_the_conv_bank_asks_cudnn_for_full_float32_and_gives_the_setting_back():

@@ -3,7 +3,7 @@
 Everything is measured in one run against baselines computed in the same run:
 - pyramid: the five basis maps at all scales for 32 images of 128x128, ftorch (the default band
   matrices) vs OpenCV's ``cv2.sepFilter2D`` with the very same sampled kernels (same radius, same
-  reflect border) and vs ftorch's conv2d bank (``Pyramid.CONV``); all three are checked against
+  reflect border) and vs ftorch's conv2d bank (``FilterMethod.CONV``); all three are checked against
   scipy at the tests' tolerance on one image, and the conv2d bank against the band matrices on all.
 - record: the whole per-image record (pyramid, scale functions, salient points, descriptors).
 - texel / edgel_pair / edgel3 / geometric3 / boolean: (feature, image) evaluations per second,
@@ -65,7 +65,7 @@ from ftorch.space.features import Conjunction, Disjunction
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.kernels import derivative_kernels
 from ftorch.space.reference import reference_values, scipy_basis
-from ftorch.space.scale_space import Pyramid
+from ftorch.space.scale_space import FilterMethod
 from training.cli.arguments import Parser, at_least
 from training.cli.devices import resolve_device
 from training.cli.outputs import writable_file
@@ -144,8 +144,8 @@ def worst_error(maps: np.ndarray, image: np.ndarray, sigmas: list[float], valid:
 
 
 def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> dict:
-    space = ScaleSpace(method=Pyramid.BAND).to(device)
-    conv = ScaleSpace(method=Pyramid.CONV).to(device)
+    space = ScaleSpace(method=FilterMethod.BAND).to(device)
+    conv = ScaleSpace(method=FilterMethod.CONV).to(device)
     batch = torch.from_numpy(images).to(device)
     sigmas = [space.sigma(k) for k in range(space.num_levels(*images.shape[1:]))]
     (seconds, out), (conv_seconds, conv_out), (cv_seconds, cv_maps) = _interleaved(

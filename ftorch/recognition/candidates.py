@@ -17,13 +17,14 @@ would give under that drawing rule.
 """
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from enum import StrEnum
 
 import torch
 
-from ..space.features import Conjunction, Disjunction, LocalFeature, Within
+from ..space.features import Conjunction, Disjunction, Feature, LocalFeature, Within
 from ..space.generate import expand_geometric, localize, random_edgel_pair, random_texel, random_texture
+from ..space.record import ImageRecords
 from ..space.region import Frame
 from .bayes import ClassNetwork
 from .environment import ImageSet
@@ -42,7 +43,8 @@ class Method(StrEnum):
 
 
 METHODS = tuple(Method)
-_SAMPLERS = {Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
+_SAMPLERS: dict[Primitive, Callable[[ImageRecords, int, torch.Generator | None], Feature | None]] = {
+    Primitive.TEXEL: random_texel, Primitive.EDGEL: random_edgel_pair, Primitive.TEXTURE: random_texture}
 
 
 # The first disc of each frame and the smallest (radius in the frame's units, ftorch.space.region):

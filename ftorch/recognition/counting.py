@@ -14,7 +14,7 @@ with few training views, a feature just added) on all, as the thesis counts.
 """
 from __future__ import annotations
 
-from collections.abc import Hashable, Iterable
+from collections.abc import Hashable, Iterable, Sequence
 
 import numpy as np
 import torch
@@ -55,7 +55,7 @@ class Counting:
         if rec.queried:
             self.instances.set_block([image], rec.queried, np.array([[rec.values[f]] for f in rec.queried]))
 
-    def held_out(self, label, features: list, values: np.ndarray, present: np.ndarray,
+    def held_out(self, label, features: Sequence[Hashable], values: np.ndarray, present: np.ndarray,
                  against: np.ndarray, calibrate: bool) -> np.ndarray:
         """``values`` (F, n) of nodes ``features`` of class ``label``, with each node's selection images set to NaN (not
         counted) where ``calibrate`` is on and the other measured instances still hold ``HELD_OUT`` of
@@ -71,7 +71,7 @@ class Counting:
         enough = ((kept & present).sum(1) >= HELD_OUT) & ((kept & against).sum(1) >= HELD_OUT)
         return np.where(chosen & enough[:, None], np.nan, values)
 
-    def discretize(self, label, features: list, settings: LearnerSettings,
+    def discretize(self, label, features: Sequence[Hashable], settings: LearnerSettings,
                    against: frozenset | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(cut-points, distinctive powers) (F,) of nodes of class ``label``, each against the classes
         it discriminates (def. 4.2; ``against``, where given, for all of them), in one batched KSD;

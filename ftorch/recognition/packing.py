@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Hashable, Sequence
+from typing import cast
 
 import numpy as np
 
@@ -36,14 +37,14 @@ from ..space.region import Frame, Region
 from ..space.texture import BINS, level_sigma
 from .bayes import ClassNetwork
 
-CODES = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4, Within: 5}
+CODES: dict[type[Feature], int] = {Texel: 0, Geometric: 1, Conjunction: 2, Disjunction: 3, Texture: 4, Within: 5}
 KINDS = (PartKind.TEXEL, PartKind.EDGEL, PartKind.TEXTURE)  # a part kind's code is its position
 FRAMES = (Frame.IMAGE, Frame.OBJECT)  # a region frame's code is its position
 LIMIT = 1 << 16  # features per table and nodes per network that a uint16 position can name
 
 
 class _Writer:
-    def __init__(self):
+    def __init__(self) -> None:
         self.chunks: list[bytes] = []
 
     def put(self, form: str, *values) -> None:
@@ -73,12 +74,12 @@ def _table(networks: Sequence[ClassNetwork]) -> dict[Feature, int]:
     """Every feature the networks hold and every sub-feature of theirs, sub-features first."""
     positions: dict[Feature, int] = {}
 
-    def add(feature: Feature) -> None:
+    def add(feature: Hashable) -> None:
         if feature in positions:
             return
-        for sub in feature.subfeatures():
+        for sub in feature.subfeatures() if isinstance(feature, Feature) else ():
             add(sub)
-        if type(feature) not in CODES:
+        if not isinstance(feature, Feature) or type(feature) not in CODES:
             raise InputError(f"no packed form for {type(feature).__name__} features: add it to ftorch.recognition.packing")
         positions[feature] = len(positions)
     for net in networks:
@@ -112,7 +113,7 @@ def _put_feature(out: _Writer, feature: Feature, positions: dict[Feature, int]) 
         out.floats(disc)
         out.put("H", positions[feature.feature])
     else:
-        out.put("HH", positions[feature.a], positions[feature.b])
+        out.put("HH", *(positions[sub] for sub in feature.subfeatures()))
 
 
 def pack(networks: dict[Hashable, ClassNetwork]) -> bytes:
@@ -129,8 +130,8 @@ def pack(networks: dict[Hashable, ClassNetwork]) -> bytes:
         out.floats([net.prior[1]])
         out.put("H", len(net.features))
         nodes = {f: k for k, f in enumerate(net.features)}
-        for feature in net.features:
-            parents = net.parents[feature]
+        for feature in cast(tuple[Feature, ...], net.features):  # a class network's nodes; _table made sure they are features
+            parents = cast(tuple[Feature, ...], net.parents[feature])
             out.put("H", positions[feature])
             out.floats([net.threshold[feature]])
             out.put(f"B{len(parents)}H", len(parents), *(nodes[p] for p in parents))
@@ -167,6 +168,7 @@ def _get_feature(source: _Reader, table: list[Feature]) -> Feature:
         if inner >= len(table):
             raise ValueError(f"a within refers to feature {inner} before it is defined")
         return Within(table[inner], Region(FRAMES[frame], x, y, radius))  # a bad radius: InputError, a ValueError
+    assert issubclass(kind, (Conjunction, Disjunction)), kind  # the codes left
     a, b = source.get("HH")
     if max(a, b) >= len(table):
         raise ValueError(f"a {kind.TYPE} refers to feature {max(a, b)} before it is defined")
@@ -186,7 +188,7 @@ def unpack(data: bytes, labels: Sequence[Hashable]) -> dict[Hashable, ClassNetwo
     networks = {}
     for label in labels:
         prior = float(source.floats(1)[0])
-        features, parents, thresholds, cpts = [], [], [], []
+        features, parent_nodes, thresholds, cpts = [], [], [], []
         for _ in range(source.get("H")[0]):
             (position,) = source.get("H")
             if position >= len(table):
@@ -194,12 +196,12 @@ def unpack(data: bytes, labels: Sequence[Hashable]) -> dict[Hashable, ClassNetwo
             features.append(table[position])
             thresholds.append(float(source.floats(1)[0]))
             (count,) = source.get("B")
-            parents.append(source.get(f"{count}H"))
+            parent_nodes.append(source.get(f"{count}H"))
             present = source.floats(2 ** (1 + count)).astype(float).reshape((2,) * (1 + count))
             cpts.append(np.stack([1 - present, present], axis=-1))
-        if any(k >= len(features) for ps in parents for k in ps):
+        if any(k >= len(features) for ps in parent_nodes for k in ps):
             raise ValueError(f"a node of class {label!r} has a parent beyond its {len(features)} nodes")
-        parents = [[features[k] for k in ps] for ps in parents]
+        parents = [[features[k] for k in ps] for ps in parent_nodes]
         networks[label] = ClassNetwork.of(label, features, parents, thresholds, [1 - prior, prior], cpts)
     if source.at != len(data):
         raise ValueError(f"{len(data) - source.at} bytes left after the packed networks")

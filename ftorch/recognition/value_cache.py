@@ -25,7 +25,7 @@ class ValueCache:
     cache is part of a run's state (:meth:`state_dict`).
     """
 
-    def __init__(self, images: int, dtype=np.float64):
+    def __init__(self, images: int, dtype=np.float64) -> None:
         self.images = images
         self.dtype = np.dtype(dtype)
         self._row: dict[Feature, int] = {}
@@ -47,7 +47,8 @@ class ValueCache:
             self._table.add_rows(np.full((len(self._row) - self._table.rows, self.images), np.nan))
         table = self._table.array
         rows = np.array([self._row[f] for f in features], dtype=np.int64)
-        block = table[np.ix_(rows, images)]
+        columns = np.asarray(images)
+        block = table[np.ix_(rows, columns)]
         missing = [features[j] for j in np.flatnonzero(np.isnan(block).any(1))]
         if missing:
             missing = list(dict.fromkeys(missing))
@@ -58,7 +59,7 @@ class ValueCache:
             for f, row in zip(missing, computed):
                 current = table[self._row[f], batch]
                 table[self._row[f], batch] = np.where(np.isnan(current), row, current)
-            block = table[np.ix_(rows, images)]
+            block = table[np.ix_(rows, columns)]
         return block.astype(np.float64, copy=False)
 
     def extended(self, images: int) -> "ValueCache":
@@ -89,7 +90,8 @@ class ValueCache:
         """The cache as JSON-ready data: the features, by position in ``table`` (or in a table of
         its own, written as "table"), and the exact values."""
         own = table is None
-        table = self.table() if own else table
+        if table is None:
+            table = self.table()
         features = list(self._row)  # in row order: rows are only ever added
         # a table from table() holds them at their rows: compared by identity, nothing hashed
         positions = range(len(features)) if table.features[: len(features)] == features else map(table.index, features)

@@ -73,7 +73,21 @@ def draw_marker(canvas: np.ndarray, kind: int, x: float, y: float, sigma: float,
 
 
 def draw_salient(records: ImageRecords, n: int, image, min_side: int = 384) -> np.ndarray:
-    """Figure 3.9: edgels (left panel) and texels (right panel) of image n, RGB uint8."""
+    """Figure 3.9: edgels (left panel) and texels (right panel) of image n.
+
+    Args:
+        records: the records holding image n.
+        n: the image's index in ``records``.
+        image: the grey image itself, tensor or array.
+        min_side: the least side of each panel (a smaller image is enlarged, nearest neighbour).
+
+    Returns:
+        the two panels side by side, RGB uint8.
+
+    Shape:
+        - image: :math:`(H, W)`.
+        - Output: :math:`(H', 2W' + 8, 3)`, (H', W') = (H, W) times the zoom to ``min_side``, rounded.
+    """
     left, zoom = _canvas(records, n, image, min_side)
     right = left.copy()
     points = records.mask[n].nonzero()[:, 0].tolist()
@@ -199,8 +213,25 @@ def feature_legend(features, ids, width: int) -> np.ndarray:
 
 def draw_features(records: ImageRecords, n: int, image, features, ids=None, min_side: int = 256,
                   legend: bool = False) -> np.ndarray:
-    """Figures 4.7/4.8: ``features`` located in image n and drawn with their ``ids``, RGB uint8;
-    ``legend``: with :func:`feature_legend` below."""
+    """Figures 4.7/4.8: ``features`` located in image n (eq. 3.14) and drawn with their ``ids``.
+
+    Args:
+        records: the records holding image n.
+        n: the image's index in ``records``.
+        image: the grey image itself, tensor or array.
+        features: the features to draw.
+        ids: their names in the drawing (default 0, 1, ...).
+        min_side: the least side of the drawing.
+        legend: with :func:`feature_legend` below.
+
+    Returns:
+        the drawing, RGB uint8.
+
+    Shape:
+        - image: :math:`(H, W)`.
+        - Output: :math:`(H', W', 3)`, (H', W') = (H, W) times the zoom to ``min_side``, rounded;
+          the legend adds rows.
+    """
     canvas, zoom = _canvas(records, n, image, min_side)
     features = list(features)
     every: dict = {}
@@ -233,8 +264,20 @@ def titled(picture: np.ndarray, title: str) -> np.ndarray:
 
 
 def panel(image: Tensor, title: str, least: int = 96) -> np.ndarray:
-    """A grey (H, W) image in [0, 1] as a titled RGB panel, enlarged by pixel repetition to at
-    least ``least`` pixels a side where it is smaller."""
+    """A grey image in [0, 1] as a titled panel.
+
+    Args:
+        image: the grey image.
+        title: the text above it.
+        least: the least side: a smaller image is enlarged by pixel repetition.
+
+    Returns:
+        the panel, RGB uint8.
+
+    Shape:
+        - image: :math:`(H, W)`.
+        - Output: :math:`(22 + kH, kW, 3)`, k the repetition to ``least``.
+    """
     grey = to_uint8(image)
     grey = np.kron(grey, np.ones((-(-least // grey.shape[0]),) * 2, np.uint8))
     return titled(np.repeat(grey[..., None], 3, axis=2), title)

@@ -180,7 +180,7 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     attitudes = [tuple(params[:, i, j][:, None] for j in range(4)) for i in range(1, len(kinds))]
     parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
     next(parts)  # the first part was matched at the reference points themselves
-    frames = Frames.of(records, reference.image) if len(kinds) > 1 else None
+    frames = None  # the limits of valid samples, found at the first oriented part after the first
     tiny = torch.finfo(numerator.dtype).tiny
     texture = None  # the product of the texture parts' Bhattacharyya coefficients (F, K)
     for i, (x, y, sigma, theta) in enumerate(parts, 1):
@@ -192,12 +192,14 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
             texture = coefficient if texture is None else texture * coefficient
         else:
             edgel = kinds[i] == PartKind.EDGEL
+            frames = Frames.of(records, reference.image) if frames is None else frames
             sample, ok = sample_unmasked(records.pyramid, frames, x, y, sigma, edgel)
             sample = steered(sample, theta, edgel)
             numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
             observed = observed + (sample**2).sum(-1)
         valid = ok if valid is None else valid & ok
-    pattern = sum((v**2).sum(1) for v, kind in zip(vectors, kinds) if kind is not PartKind.TEXTURE)[:, None]
+    oriented = [(v**2).sum(1) for v, kind in zip(vectors, kinds) if kind is not PartKind.TEXTURE]  # part 0 is oriented
+    pattern = sum(oriented[1:], start=oriented[0])[:, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(tiny)
     if texture is not None:  # the oriented parts' cosine (eq. 3.13) times each texture part's coefficient
         cosine = cosine * texture
@@ -231,18 +233,41 @@ def _texture_fields(features: list[Texture], records: ImageRecords, max_elements
 
 
 def feature_values(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> FeatureValues:
-    """Values (F, N) of ``features`` in every image of ``records`` and where each is strongest.
+    """Values of ``features`` in every image of ``records`` (eq. 3.14) and where each is strongest.
 
     All local features (texels, geometric compounds, textures, the leaves of Boolean compounds)
-    are evaluated once each (once per set of regions around them), batched by structure;
-    ``max_elements`` bounds the gathered tensors.
+    are evaluated once each (once per set of regions around them), batched by structure.
+
+    Args:
+        features: F features of any types.
+        records: the records of N images.
+        max_elements: a bound on the elements of the gathered tensors (features are chunked to it).
+
+    Returns:
+        the values in [0, 1] (0 where an image has no applicable reference point) and the x, y,
+        sigma, theta of the maximising point (NaN where none), in the records' dtype and device.
+
+    Shape:
+        - Output: :class:`FeatureValues`, each field :math:`(F, N)`.
     """
     return FeatureValues(*_evaluate(features, records, max_elements, located=True))
 
 
 def values_only(features: Sequence[Feature], records: ImageRecords, max_elements: int = 1 << 24) -> Tensor:
-    """``feature_values(features, records).values`` (F, N), the same numbers, without finding
-    where each is reached: what the learners measure."""
+    """``feature_values(features, records).values``, the same numbers, without finding where each
+    is reached: what the learners measure.
+
+    Args:
+        features: F features of any types.
+        records: the records of N images.
+        max_elements: a bound on the elements of the gathered tensors.
+
+    Returns:
+        the values in [0, 1].
+
+    Shape:
+        - Output: :math:`(F, N)`.
+    """
     return _evaluate(features, records, max_elements, located=False)[0]
 
 
@@ -251,22 +276,25 @@ def _evaluate(features: Sequence[Feature], records: ImageRecords, max_elements: 
     features = list(features)
     if not all(isinstance(f, Feature) for f in features):
         raise InputError("features: every item must be an ftorch Feature")
-    leaves: dict[tuple[Feature, tuple[Region, ...]], int] = {}
+    leaves: dict[tuple[LocalFeature | Texture, tuple[Region, ...]], int] = {}
     for feature in features:
         _collect(feature, leaves, ())
     # leaves without regions form the groups they always formed, and are measured by the same code
     # (no mask); bounded leaves are grouped apart, so that adding a Within changes no other value
-    groups: dict[tuple, list[tuple[Feature, tuple[Region, ...]]]] = {}
+    groups: dict[tuple, list[tuple[LocalFeature | Texture, tuple[Region, ...]]]] = {}
     for leaf, regions in leaves:
-        key = ("texture", leaf.level) if isinstance(leaf, Texture) else tuple(p.kind for p in leaf.parts)
-        groups.setdefault((key, bool(regions)), []).append((leaf, regions))
+        make = ("texture", leaf.level) if isinstance(leaf, Texture) else tuple(p.kind for p in leaf.parts)
+        groups.setdefault((make, bool(regions)), []).append((leaf, regions))
     leaf_values: dict[tuple[Feature, tuple[Region, ...]], tuple[Tensor, ...]] = {}
     for (_, bounded), group in groups.items():
-        measure = _texture_fields if isinstance(group[0][0], Texture) else _local_fields
-        result = measure([leaf for leaf, _ in group], records, max_elements, located,
-                         [regions for _, regions in group] if bounded else None)
-        for j, key in enumerate(group):
-            leaf_values[key] = tuple(t[j] for t in result)
+        # a group is all textures of one level or all local features of one make-up
+        textures = [leaf for leaf, _ in group if isinstance(leaf, Texture)]
+        local = [leaf for leaf, _ in group if isinstance(leaf, LocalFeature)]
+        bounds = [regions for _, regions in group] if bounded else None
+        result = (_texture_fields(textures, records, max_elements, located, bounds) if textures
+                  else _local_fields(local, records, max_elements, located, bounds))
+        for j, leaf_regions in enumerate(group):
+            leaf_values[leaf_regions] = tuple(t[j] for t in result)
     if not features:
         empty = records.x.new_zeros(0, len(records))
         return (empty,) * (5 if located else 1)

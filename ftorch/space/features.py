@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
-from typing import ClassVar
+from dataclasses import Field, dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
 from torch import Tensor
@@ -54,6 +54,8 @@ def _vector(values, kind: PartKind) -> tuple[float, ...]:
 
 class _CachedHash:
     """Features are dictionary keys everywhere (networks, instance list): hash each one once."""
+
+    __dataclass_fields__: ClassVar[dict[str, Field[Any]]]  # what hashes is a dataclass
 
     def __hash__(self) -> int:
         cached = self.__dict__.get("_hash")
@@ -109,7 +111,7 @@ class Feature(_CachedHash):
 
     TYPE: ClassVar[str] = ""  # the "type" of its JSON form
     ARCS_TO_COMPONENTS: ClassVar[bool] = True  # arcs run compound -> component (4.4.1); False: component -> compound
-    _types: ClassVar[dict[str, type]] = {}
+    _types: ClassVar[dict[str, type[Feature]]] = {}
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -178,7 +180,9 @@ class Feature(_CachedHash):
 class LocalFeature(Feature):
     """A feature measured at one reference point: a texel or a geometric compound."""
 
-    parts: tuple[Part, ...]
+    if TYPE_CHECKING:  # a geometric compound stores its parts, a texel makes its one part from its vector
+        @property
+        def parts(self) -> tuple[Part, ...]: ...
 
     @property
     def primitives(self) -> int:
@@ -268,7 +272,9 @@ class Texture(Feature):
 
     @property
     def level(self) -> int:
-        return sigma_level(self.sigma)
+        level = sigma_level(self.sigma)
+        assert level is not None, "__post_init__ admits the scale space's levels only"
+        return level
 
     @property
     def primitives(self) -> int:
@@ -315,7 +321,8 @@ class _Boolean(Feature):
     def value(a: Tensor, b: Tensor) -> Tensor:
         raise NotImplementedError
 
-    def combine(self, a: tuple[Tensor, ...], b: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+    def combine(self, *values: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+        a, b = values
         take_b = b[0] > a[0]
         return (self.value(a[0], b[0]), *(torch.where(take_b, fb, fa) for fa, fb in zip(a[1:], b[1:])))
 
@@ -441,7 +448,7 @@ def unpack_features(data: dict, memo: Memo | None = None) -> list[Feature]:
     where the blocks read are remembered as packed already (a resumed run writes them as they are)."""
     if not isinstance(data, dict) or not isinstance(data.get("blocks"), list):
         raise ValueError("damaged feature table (no blocks)")
-    features = []
+    features: list[Feature] = []
     for block in data["blocks"]:
         try:
             items = json.loads(decode_text(block, CHUNK * MAX_FEATURE_BYTES))

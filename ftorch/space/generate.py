@@ -21,7 +21,7 @@ from .evaluate import feature_values
 from .features import Feature, Geometric, LocalFeature, Part, Texel, Texture, Within
 from .primitives import PartKind
 from .record import ImageRecords
-from .region import Frame, Region, frame_coordinates
+from .region import Frame, Region, as_frame, frame_coordinates
 from .sampling import placements, sample_texture, steered_sample
 from .texture import level_sigma
 
@@ -59,7 +59,7 @@ def _relative_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor
     _, (x, y, sigma, theta) = placements(previous, [attitude])
     image = torch.tensor([n], device=records.device)
     vector, _ = steered_sample(records, image, x[None], y[None], sigma[None], theta[None], kind == PartKind.EDGEL)
-    return Part(kind, vector[0].tolist(), *attitude)
+    return Part(kind, tuple(vector[0].tolist()), *attitude)
 
 
 def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor, ...]) -> Part:
@@ -70,37 +70,63 @@ def _texture_part(records: ImageRecords, n: int, q: int, previous: tuple[Tensor,
                          level_sigma(int(records.grid_level[n, q])), float(previous[3]))
     _, (x, y, sigma, _) = placements(previous, [attitude])
     vector, _ = sample_texture(records, torch.tensor([n], device=records.device), x[None], y[None], sigma[None])
-    return Part(PartKind.TEXTURE, vector[0].tolist(), *attitude)
+    return Part(PartKind.TEXTURE, tuple(vector[0].tolist()), *attitude)
 
 
-def _own_vector(records: ImageRecords, n: int, p: int) -> list[float]:
-    return records.canonical[n, p, _part_kind(records, n, p).slots].tolist()
+def _own_vector(records: ImageRecords, n: int, p: int) -> tuple[float, ...]:
+    return tuple(records.canonical[n, p, _part_kind(records, n, p).slots].tolist())
 
 
 def random_texel(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texel | None:
-    """Method 2, texel branch: the texel response vector at a random salient texel of image n."""
+    """Method 2, texel branch: the texel response vector at a random salient texel of image n.
+
+    Args:
+        records: the records holding image n.
+        n: the sample image's index in ``records``.
+        generator: the source of every random choice.
+
+    Returns:
+        the texel, or None where image n has no salient texel.
+    """
     p = _choose(records.texel_mask()[n].nonzero()[:, 0].cpu(), generator)
     return None if p is None else Texel(_own_vector(records, n, p))
 
 
 def random_texture(records: ImageRecords, n: int, generator: torch.Generator | None = None) -> Texture | None:
     """Method 2, texture branch (7.2.1): the histogram at a random texture grid point of image n,
-    its level drawn first (uniformly among the levels with points), then the point."""
+    its level drawn first (uniformly among the levels with points), then the point.
+
+    Args:
+        records: the records holding image n.
+        n: the sample image's index in ``records``.
+        generator: the source of every random choice.
+
+    Returns:
+        the texture, or None where image n has no grid point.
+    """
     points = records.grid_mask[n]
     levels = records.grid_level[n][points].unique().cpu()
     level = _choose(levels, generator)
     if level is None:
         return None
     q = _choose((points & (records.grid_level[n] == level)).nonzero()[:, 0].cpu(), generator)
-    return Texture(level_sigma(level), records.histograms[n, q].tolist())
+    return Texture(level_sigma(level), tuple(records.histograms[n, q].tolist()))
 
 
 def random_edgel_pair(records: ImageRecords, n: int, generator: torch.Generator | None = None,
                       max_distance: float | None = None) -> Geometric | None:
     """Method 2, edgel branch: a geometric compound of two random salient edgels of image n.
 
-    The second edgel is drawn from those within ``max_distance`` pixels of the first
-    (default: a quarter of the shorter image side, the largest scale).
+    The second edgel is drawn from those within ``max_distance`` pixels of the first.
+
+    Args:
+        records: the records holding image n.
+        n: the sample image's index in ``records``.
+        generator: the source of every random choice.
+        max_distance: the reach in pixels (default: a quarter of the shorter image side, the largest scale).
+
+    Returns:
+        the compound of two edgel parts, or None where image n has no such pair.
     """
     edgels = records.edgel_mask()[n].nonzero()[:, 0].cpu()
     first = _choose(edgels, generator)
@@ -147,6 +173,19 @@ def expand_geometric(feature: LocalFeature, records: ImageRecords, n: int, gener
     With ``texture`` the new part's kind is drawn first, a salient point or a texture grid point
     (3.5 with 7.2.1), one half each; a texture part is a grid point of any level in that reach
     (:func:`_texture_part`). Without it, the draws are those made before texture parts existed.
+
+    Args:
+        feature: a texel or geometric compound.
+        records: the records holding image n.
+        n: the sample image's index in ``records``.
+        generator: the source of every random choice.
+        max_distance: the reach in pixels from the last part (default as :func:`random_edgel_pair`).
+        located: the caller's memory of strongest occurrences in image n, by feature.
+        texture: whether the new part may be a texture part.
+
+    Returns:
+        the compound one part longer, or None where the feature does not occur in image n or
+        no point lies within reach.
     """
     if not isinstance(feature, LocalFeature):
         raise InputError(f"geometric expansion needs a texel or geometric feature, got {type(feature).__name__}")
@@ -176,8 +215,19 @@ def localize(feature: Feature, records: ImageRecords, n: int, frame: Frame | str
     Where ``feature`` is a Within already, the new region replaces its outermost one and is centred
     at its strongest occurrence inside that region: narrowing it is the caller's choice of ``radius``.
     None where image n gives no location (value 0) or, in the object frame, has no object frame.
+
+    Args:
+        feature: any feature.
+        records: the records holding image n.
+        n: the sample image's index in ``records``.
+        frame: the region's frame (:class:`~ftorch.space.region.Frame` or its name).
+        radius: the disc's radius in ``frame`` units.
+        located: the caller's memory of strongest occurrences in image n, by feature.
+
+    Returns:
+        the bounded feature, or None.
     """
-    disc = Region(frame, 0.0, 0.0, radius)  # the frame and radius checked before anything is measured
+    disc = Region(as_frame(frame), 0.0, 0.0, radius)  # the frame and radius checked before anything is measured
     occurrence = _occurrence(feature, records, n, located)
     if occurrence is None:
         return None

@@ -24,7 +24,18 @@ def kernel_radius(sigma: float, truncate: float) -> int:
 
 
 def derivative_kernels(sigma: float, truncate: float) -> np.ndarray:
-    """Rows g, sigma*g', sigma^2*g'' of the 1-D Gaussian and its derivatives, float64 (3, 2r+1)."""
+    """The sampled 1-D Gaussian and its scale-normalised derivatives (eq. 3.1-3.2), float64.
+
+    Args:
+        sigma: the scale.
+        truncate: the kernel radius in sigmas, r = :func:`kernel_radius`.
+
+    Returns:
+        the rows g, sigma*g', sigma^2*g'' (g'' with zero sum).
+
+    Shape:
+        - Output: :math:`(3, 2r + 1)`.
+    """
     r = kernel_radius(sigma, truncate)
     x = np.arange(-r, r + 1, dtype=np.float64)
     g = np.exp(-0.5 * x * x / sigma**2)

@@ -36,21 +36,21 @@ def kind_slots(kind: Tensor) -> Tensor:
     return torch.where((kind == EDGEL)[..., None], edgel_slots, slots)
 
 
-class Pyramid:
+class ResponsePyramids:
     """The response pyramids of a batch of images, stored once in the layout sampling reads.
 
     ``first`` (N, H, W, S+3, 2) and ``second`` (N, H, W, S+3, 3) hold at [n, y, x, j] the first-
     and second-order basis responses of level j-1 (zero outside the pyramid), so the levels around
     any pixel and level are one contiguous run of each that sampling reads as a row
     (``ftorch.space.sampling``): an edgel reads 4 numbers of ``first``, a texel 8 and 12. Record batches
-    selected from one another share their :class:`Pyramid` (no copies).
+    selected from one another share their :class:`ResponsePyramids` (no copies).
     """
 
     def __init__(self, first: Tensor, second: Tensor):
         self.first, self.second = first, second
 
     @classmethod
-    def of(cls, responses: Tensor) -> "Pyramid":
+    def of(cls, responses: Tensor) -> "ResponsePyramids":
         """The pyramid of responses (N, S, 5, H, W)."""
         batch, levels, _, height, width = responses.shape
         out = cls.zeros(batch, height, width, levels + 3, responses.dtype, responses.device)
@@ -72,15 +72,15 @@ class Pyramid:
         """(N, S, 5, H, W), a copy."""
         return torch.cat([self.first, self.second], -1)[:, :, :, 1:-2].permute(0, 3, 4, 1, 2)
 
-    def to(self, device) -> "Pyramid":
-        return Pyramid(self.first.to(device), self.second.to(device))
+    def to(self, device) -> "ResponsePyramids":
+        return ResponsePyramids(self.first.to(device), self.second.to(device))
 
     @staticmethod
-    def cat(pyramids: Sequence["Pyramid"]) -> "Pyramid":
+    def cat(pyramids: Sequence["ResponsePyramids"]) -> "ResponsePyramids":
         """One pyramid of several, padded with zeros to the largest height, width and level count."""
         dtype = functools.reduce(torch.promote_types, [p.first.dtype for p in pyramids])
-        out = Pyramid.zeros(sum(len(p) for p in pyramids), *(max(p.first.shape[d] for p in pyramids) for d in (1, 2, 3)),
-                            dtype, pyramids[0].first.device)
+        height, width, entries = (max(p.first.shape[d] for p in pyramids) for d in (1, 2, 3))
+        out = ResponsePyramids.zeros(sum(len(p) for p in pyramids), height, width, entries, dtype, pyramids[0].first.device)
         start = 0
         for p in pyramids:
             out.put(start, p)
@@ -88,11 +88,11 @@ class Pyramid:
         return out
 
     @staticmethod
-    def zeros(n: int, height: int, width: int, entries: int, dtype: torch.dtype, device) -> "Pyramid":
+    def zeros(n: int, height: int, width: int, entries: int, dtype: torch.dtype, device) -> "ResponsePyramids":
         """An empty pyramid of n images of ``entries`` = S+3 table entries."""
-        return Pyramid(*(torch.zeros(n, height, width, entries, k, dtype=dtype, device=device) for k in (2, 3)))
+        return ResponsePyramids(*(torch.zeros(n, height, width, entries, k, dtype=dtype, device=device) for k in (2, 3)))
 
-    def put(self, start: int, other: "Pyramid") -> None:
+    def put(self, start: int, other: "ResponsePyramids") -> None:
         """Copy ``other`` into images start, start+1, ... (top left; the rest stays zero)."""
         _, height, width, entries, _ = other.first.shape
         rows = slice(start, start + len(other))
@@ -112,7 +112,7 @@ class ImageRecords:
     intensity histograms (N, Q, BINS) there (``ftorch.space.texture``, 7.2.1).
     """
 
-    pyramid: Pyramid
+    pyramid: ResponsePyramids
     source: Tensor
     levels: Tensor
     sizes: Tensor
@@ -132,14 +132,14 @@ class ImageRecords:
     grid_mask: Tensor
     histograms: Tensor
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         # the reference points of each part kind or texture level, found once per records object
         # by the feature values (ftorch/space/evaluate.py), and the images' object frames
         # (ftorch/space/region.py); records are never changed in place
         self.reference_points: dict = {}
 
     @classmethod
-    def build(cls, space: ScaleSpaceOutput, points: Points, texture: tuple[Tensor, ...], into: Pyramid | None = None,
+    def build(cls, space: ScaleSpaceOutput, points: Points, texture: tuple[Tensor, ...], into: ResponsePyramids | None = None,
               offset: int = 0) -> "ImageRecords":
         """Records of one batch (``texture``: its :class:`~ftorch.space.texture.TextureGrid`); its
         pyramid is written into images offset, ... of ``into`` where given."""
@@ -165,7 +165,7 @@ class ImageRecords:
         if into is not None:
             into.write(offset, responses)
         return cls(
-            pyramid=Pyramid.of(responses) if into is None else into,
+            pyramid=ResponsePyramids.of(responses) if into is None else into,
             source=torch.arange(offset, offset + batch, device=responses.device),
             levels=torch.full((batch,), levels, dtype=torch.long, device=responses.device),
             sizes=torch.tensor([[height, width]] * batch, dtype=torch.long, device=responses.device),
@@ -186,12 +186,12 @@ class ImageRecords:
             histograms=texture[3],
         )
 
-    def own_pyramid(self) -> Pyramid:
+    def own_pyramid(self) -> ResponsePyramids:
         """The pyramid of exactly these records, in their order (shared where it is the whole one)."""
         whole = self.pyramid
         if len(self) == len(whole) and bool((self.source == torch.arange(len(self), device=self.device)).all()):
             return whole
-        return Pyramid(whole.first[self.source], whole.second[self.source])
+        return ResponsePyramids(whole.first[self.source], whole.second[self.source])
 
     @property
     def responses(self) -> Tensor:
@@ -241,7 +241,7 @@ class ImageRecords:
         }
 
     @staticmethod
-    def cat(records: Sequence["ImageRecords"], pyramid: Pyramid | None = None) -> "ImageRecords":
+    def cat(records: Sequence["ImageRecords"], pyramid: ResponsePyramids | None = None) -> "ImageRecords":
         """Concatenate records of different sizes, padding pyramids and point lists; ``pyramid``:
         the joined pyramid, in this order, where the caller has built it (their own are not read)."""
         if len(records) == 1 and pyramid is None:
@@ -255,7 +255,7 @@ class ImageRecords:
                 continue
             shape = [max(p.shape[d] for p in parts) for d in range(1, parts[0].ndim)]
             joined[f.name] = torch.cat([_pad(p, shape, fills.get(f.name, 0)) for p in parts])
-        pyramid = Pyramid.cat([r.own_pyramid() for r in records]) if pyramid is None else pyramid
+        pyramid = ResponsePyramids.cat([r.own_pyramid() for r in records]) if pyramid is None else pyramid
         return ImageRecords(pyramid, torch.arange(len(pyramid), device=pyramid.first.device), **joined)
 
 
@@ -272,6 +272,15 @@ class FeatureSpace(nn.Module):
 
     ``forward`` takes one batch of equal-sized images; :meth:`records` takes any sequence of
     images, arrays or file paths of mixed sizes and returns them as one padded batch in order.
+
+    Args:
+        truncate: kernel radius in sigmas (:class:`~ftorch.space.scale_space.ScaleSpace`).
+        rel_threshold: the salient points' relative threshold (:class:`~ftorch.space.salient.SalientPoints`).
+
+    Shape:
+        - Input: :math:`(B, C, H, W)` (C = 1 grey or 3 RGB), :math:`(B, H, W)` or :math:`(H, W)`.
+        - Output: :class:`ImageRecords` of B images, per point :math:`(B, P)` (P the most points of
+          any image), descriptors :math:`(B, P, 15)`, per texture grid point :math:`(B, Q)`.
     """
 
     def __init__(self, truncate: float = 3.0, rel_threshold: float = 1e-2):
@@ -300,7 +309,7 @@ class FeatureSpace(nn.Module):
     def _texture(self, images: Tensor, space: ScaleSpaceOutput) -> tuple[Tensor, ...]:
         return self.texture(images[:, 0].to(space.responses.dtype), space.responses.shape[1])
 
-    def _pyramid_layout(self, shapes: Sequence[tuple[int, int]]) -> tuple[int, int, int]:
+    def _pyramid_layout(self, shapes: Sequence[tuple[int, ...]]) -> tuple[int, int, int]:
         """(height, width, S+3 entries) of the joined pyramid of images of these (H, W) shapes."""
         height, width = (max(shape[d] for shape in shapes) for d in (0, 1))
         return height, width, max(self.scale_space.num_levels(*shape) for shape in shapes) + 3
@@ -328,8 +337,22 @@ class FeatureSpace(nn.Module):
 
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:
-        """Records of ``images`` (files, arrays or tensors of any sizes), batched by size; ``names``
-        name the images in errors (default: the file path, or images[i])."""
+        """Records of images of any sizes, computed in batches of one size and joined in order.
+
+        Args:
+            images: files, arrays or tensors, each one image (``ftorch.images.as_image``), or one
+                array of several.
+            batch_size: the most images computed at once.
+            progress: show a progress bar.
+            names: the images' names in errors (default: the file path, or images[i]).
+
+        Returns:
+            the records of all images, padded to the largest size and point count.
+
+        Shape:
+            - images: N images, each of its own :math:`(H_i, W_i)`, grey or colour (``as_image``'s rules).
+            - Output: :class:`ImageRecords` of N images.
+        """
         if isinstance(images, (np.ndarray, torch.Tensor)):  # one array: its images, by the rules of as_image_batch
             images = list(as_image_batch(images))
         if len(images) == 0:
@@ -353,13 +376,15 @@ class FeatureSpace(nn.Module):
         chunks = [(key, idx[s : s + batch_size]) for key, idx in groups.items() for s in range(0, len(idx), batch_size)]
         # each batch's responses are written straight into the joined pyramid, so that building
         # holds one set of tables, not two
-        parts, order, pyramid = [], [], None
+        parts: list[ImageRecords] = []
+        order: list[int] = []
+        pyramid: ResponsePyramids | None = None
         for _, idx in tqdm(chunks, desc="image records", unit="batch", disable=not progress):
             batch = torch.stack([loaded[i] for i in idx])
             space = self.scale_space(contrast_normalized(batch))
             if pyramid is None:
                 dtype = functools.reduce(torch.promote_types, [space.responses.dtype] + [image.dtype for image in loaded])
-                pyramid = Pyramid.zeros(len(loaded), height, width, entries, dtype, device)
+                pyramid = ResponsePyramids.zeros(len(loaded), height, width, entries, dtype, device)
             parts.append(ImageRecords.build(space, self.salient(space), self._texture(batch, space), pyramid, len(order)))
             order.extend(idx)
         joined = ImageRecords.cat(parts, pyramid)

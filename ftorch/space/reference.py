@@ -30,10 +30,22 @@ from .texture import FIRST_LEVEL
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
-    """The five scale-normalised basis maps (5, H, W) from scipy, with ftorch's zero-sum g''.
+    """The five scale-normalised basis maps from scipy, with ftorch's zero-sum g''.
 
     scipy's order-2 filter minus (sum of its sampled g'') times the smoothed image equals the
     zero-sum second derivative of kernels.py; the rest is scipy as it is (mode 'reflect').
+
+    Args:
+        image: a grey image.
+        sigma: the scale.
+        truncate: the kernel radius in sigmas.
+
+    Returns:
+        G1@0, G1@pi/2, G2@0, G2@pi/3, G2@2pi/3 (eq. 3.8), as ``ScaleSpace`` orders them.
+
+    Shape:
+        - image: :math:`(H, W)`.
+        - Output: :math:`(5, H, W)`.
     """
     def f(oy, ox):
         return gaussian_filter(image, sigma, order=(oy, ox), truncate=truncate, mode="reflect")
@@ -131,11 +143,13 @@ def local_value_at(feature: LocalFeature, pyramid: np.ndarray, x: float, y: floa
             theta += part.dtheta
             sigma *= part.dsigma
         if part.kind == "texture":
+            if grid is None:
+                raise ValueError("a texture part is sampled from the image's texture grid: pass texture_grid(records, n)")
             measured = _texture_sample(grid, x, y, sigma)
             if measured is None:
                 return None
             stored = np.array(part.vector)
-            cosine = float(measured @ stored) / (np.linalg.norm(measured) * np.linalg.norm(stored))
+            cosine = float(measured @ stored) / float(np.linalg.norm(measured) * np.linalg.norm(stored))
             coefficient *= min(1.0, max(0.0, cosine))
             continue
         measured = _measure(pyramid, x, y, sigma, theta, part.kind)
@@ -194,7 +208,7 @@ def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tu
     if isinstance(feature, Texture):
         return texture_value(feature, records, n, regions)
     if not isinstance(feature, LocalFeature):
-        a, b = reference_value(feature.a, records, n, regions), reference_value(feature.b, records, n, regions)
+        a, b = (reference_value(sub, records, n, regions) for sub in feature.subfeatures())
         return a * b if isinstance(feature, Conjunction) else max(a, b)
     levels = int(records.levels[n])
     height, width = (int(v) for v in records.sizes[n])
@@ -215,5 +229,16 @@ def reference_value(feature: Feature, records: ImageRecords, n: int, regions: tu
 
 
 def reference_values(features, records: ImageRecords) -> np.ndarray:
-    """(F, N) values by the per-point loop."""
+    """Feature values by the per-point loop (the test oracle of ``feature_values``).
+
+    Args:
+        features: F features.
+        records: the records of N images.
+
+    Returns:
+        the values (eq. 3.14), float64.
+
+    Shape:
+        - Output: :math:`(F, N)`.
+    """
     return np.array([[reference_value(f, records, n) for n in range(len(records))] for f in features])

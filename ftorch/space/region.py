@@ -41,6 +41,14 @@ class Frame(StrEnum):
     OBJECT = "object"
 
 
+def as_frame(value: Frame | str) -> Frame:
+    """``value`` (a :class:`Frame` or its name) as a frame; InputError for anything else."""
+    try:
+        return Frame(value)
+    except (ValueError, TypeError):
+        raise InputError(f"region frame must be 'image' or 'object', got {value!r}") from None
+
+
 def _number(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(float(value)):
         raise InputError(f"region {name} must be a finite number, got {value!r}")
@@ -57,10 +65,7 @@ class Region:
     radius: float
 
     def __post_init__(self):
-        try:
-            object.__setattr__(self, "frame", Frame(self.frame))
-        except (ValueError, TypeError):
-            raise InputError(f"region frame must be 'image' or 'object', got {self.frame!r}") from None
+        object.__setattr__(self, "frame", as_frame(self.frame))
         for name in ("x", "y", "radius"):
             object.__setattr__(self, name, _number(name, getattr(self, name)))
         if not self.radius > 0:

@@ -47,6 +47,17 @@ class Points:
 
 
 class SalientPoints(nn.Module):
+    """The salient edgels and texels of a batch's scale space (the module docstring's rules).
+
+    Args:
+        rel_threshold: the fraction of an image's strongest maximum below which maxima are dropped.
+        min_response: the basis-response magnitude a point needs somewhere (flat images have none).
+
+    Shape:
+        - Input: :class:`~ftorch.space.scale_space.ScaleSpaceOutput` of B images, S levels.
+        - Output: :class:`Points`, each field :math:`(P,)` for the P points of all images, ordered by image.
+    """
+
     def __init__(self, rel_threshold: float = 1e-2, min_response: float = 1e-5):
         super().__init__()
         self.rel_threshold = float(rel_threshold)
@@ -94,15 +105,14 @@ class SalientPoints(nn.Module):
 
         found = []
         b, y, x = edgels.nonzero(as_tuple=True)
-        found.append((b, y, x, edge_level[b, y, x], EDGEL, projected[b, y, x]))
+        found.append((b, y, x, edge_level[b, y, x], torch.full_like(b, EDGEL), projected[b, y, x]))
         for kind, f in ((BLOB, blob), (CORNER, corner)):
             b, k, y, x = self._scale_maxima(f, valid, structured).nonzero(as_tuple=True)
-            found.append((b, y, x, k, kind, f[b, k, y, x]))
+            found.append((b, y, x, k, torch.full_like(b, kind), f[b, k, y, x]))
         image = torch.cat([f[0] for f in found])
         order = torch.argsort(image, stable=True)
         cat = lambda i: torch.cat([f[i] for f in found])[order]  # noqa: E731
-        kinds = torch.cat([torch.full_like(f[0], f[4]) for f in found])[order]
-        image, y, x, level, strength = cat(0), cat(1), cat(2), cat(3), cat(5)
+        image, y, x, level, kinds, strength = cat(0), cat(1), cat(2), cat(3), cat(4), cat(5)
         return Points(image, x, y, level, theta[image, y, x], kinds, strength)
 
 

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .record import ImageRecords, Pyramid
+from .record import ImageRecords, ResponsePyramids
 from .steering import rotate_pair, steer
 from .texture import FIRST_LEVEL, grid_step
 
@@ -89,7 +89,7 @@ class Frames(NamedTuple):
                       records.source[image])
 
 
-def sample_unmasked(pyramid: Pyramid, frames: Frames, x: Tensor, y: Tensor, sigma: Tensor,
+def sample_unmasked(pyramid: ResponsePyramids, frames: Frames, x: Tensor, y: Tensor, sigma: Tensor,
                     edgel: bool) -> tuple[Tensor, Tensor]:
     """:func:`sample_part`'s values and validity, except that an invalid sample holds what its
     nearest cells give (finite), not zero: for callers that discard invalid samples anyway."""
@@ -101,8 +101,8 @@ def sample_unmasked(pyramid: Pyramid, frames: Frames, x: Tensor, y: Tensor, sigm
     return _read(pyramid, frames.source.expand(x.shape), x, y, u, edgel), valid
 
 
-def _read(pyramid: Pyramid, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edgel: bool) -> Tensor:
-    """Bilinear in (x, y), linear in the level u, from the pyramid's tables (see ``Pyramid``);
+def _read(pyramid: ResponsePyramids, source: Tensor, x: Tensor, y: Tensor, u: Tensor, edgel: bool) -> Tensor:
+    """Bilinear in (x, y), linear in the level u, from the pyramid's tables (see ``ResponsePyramids``);
     positions outside the pyramid read its nearest cells (their samples are invalid)."""
     shape = x.shape
     source, x, y, u = source.reshape(-1), x.reshape(-1), y.reshape(-1), u.reshape(-1)
@@ -169,8 +169,8 @@ class GridLayout(NamedTuple):
             present = offset < q
             columns = torch.where(present, torch.round((extreme(records.grid_x, "amax") - x0) / step.repeat(n)) + 1, 0)
             rows = torch.where(present, torch.round((extreme(records.grid_y, "amax") - y0) / step.repeat(n)) + 1, 0)
-            known[TEXTURE_GRID] = GridLayout(*(t.view(n, levels) for t in (offset, x0, y0, columns.long(), rows.long())),
-                                             step)
+            offset, x0, y0, columns, rows = (t.view(n, levels) for t in (offset, x0, y0, columns.long(), rows.long()))
+            known[TEXTURE_GRID] = GridLayout(offset, x0, y0, columns, rows, step)
         return known[TEXTURE_GRID]
 
 

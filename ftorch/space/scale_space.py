@@ -3,22 +3,22 @@
 For an image whose shorter side is m pixels the levels are sigma_k = 2^(k/2), k = 0..K, with
 sigma_K <= m/4 (DESIGN.md). At each level the five steerable basis responses (G1@0, G1@pi/2,
 G2@0, G2@pi/3, G2@2pi/3; eq. 3.8) are computed with separable kernels, in one of two ways
-(:class:`Pyramid`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
+(:class:`FilterMethod`), both with scipy's 'reflect' boundary (dcba|abcd: the edge pixel repeated):
 
-- ``Pyramid.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
+- ``FilterMethod.BAND`` (the default): each 1-D pass is a matrix product with a band matrix that has
   the boundary folded in, so all images, levels and kernels of one pass are a few large GEMMs
   (tiled by output rows, and beyond ``DENSE_WIDTH`` columns by output columns: see there).
-- ``Pyramid.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
+- ``FilterMethod.CONV``: each 1-D pass is one ``torch.nn.functional.conv2d`` per level, a (1, k) bank
   of the level's three kernels g, g', g'' across the rows and a (k, 1) bank of the same three
-  down the columns, the three horizontal maps folded into the batch (one plain call measured
-  faster on the CPU than a grouped call with two kernels per group, though it computes 9 maps
-  for the 5 needed). The padding is gathered by index, as torch's own 'reflect' pad leaves the
+  down the columns, the three horizontal maps folded into the batch (one plain call, though it
+  computes 9 maps for the 5 needed: a grouped call with two kernels per group is slower on the
+  CPU, docs/benchmark.md). The padding is gathered by index, as torch's own 'reflect' pad leaves the
   edge pixel out.
 
 Both compute the same sums as a direct convolution, in different orders: they agree with scipy to
 1e-12 in float64 (tested) but not bit for bit with each other in float32. The band matrices stay
 the default for two reasons: they are faster on the CPU (``python -m training.bench features``
-times both on 32 images of 128x128, 11 levels; the figures are in docs/benchmark.md), and the
+times both; docs/benchmark.md, "Feature space and exact inference"), and the
 project's reports are kept byte for byte, which another summation order would break.
 """
 from __future__ import annotations
@@ -58,7 +58,7 @@ def _ieee_convolutions(device: torch.device):
     if device.type != "cuda":
         yield
         return
-    conv = torch.backends.cudnn.conv
+    conv = torch.backends.cudnn.conv  # type: ignore[attr-defined]  # torch declares the module's other flags, not conv
     saved = conv.fp32_precision
     conv.fp32_precision = "ieee"
     try:
@@ -99,7 +99,7 @@ def _horizontal_pass(rows: Tensor, horizontal) -> Tensor:
     return out
 
 
-class Pyramid(StrEnum):
+class FilterMethod(StrEnum):
     """How :class:`ScaleSpace` runs its separable passes (the module docstring says why BAND is the default)."""
 
     BAND = "band"  # products with band matrices that have the reflecting boundary folded in
@@ -128,12 +128,23 @@ class ScaleSpace(nn.Module):
 
     ``truncate``: kernel radius in sigmas (radius = int(truncate*sigma + 0.5)); a point at level k
     is inside the image's valid region when the level-k kernel fits entirely inside the image.
-    ``method``: :class:`Pyramid` or its value ('band', 'conv'); both give the same responses to
+    ``method``: :class:`FilterMethod` or its value ('band', 'conv'); both give the same responses to
     rounding. Kernels live in buffers and follow ``.to(device)``; the band matrices or conv2d
     weights built from them are cached per (size, device, dtype).
+
+    Args:
+        truncate: kernel radius in sigmas.
+        max_levels: the most levels an image may have (kernels are built for these).
+        method: how the separable passes run (:class:`FilterMethod`).
+
+    Shape:
+        - Input: :math:`(B, C, H, W)` (C = 1 grey or 3 RGB), :math:`(B, H, W)` or :math:`(H, W)`
+          (:func:`~ftorch.images.as_image_batch`).
+        - Output: :class:`ScaleSpaceOutput` with responses :math:`(B, S, 5, H, W)`, sigmas
+          :math:`(S,)` and valid :math:`(S, H, W)`, S = :meth:`num_levels` of (H, W).
     """
 
-    def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: Pyramid | str = Pyramid.BAND):
+    def __init__(self, truncate: float = 3.0, max_levels: int = 20, method: FilterMethod | str = FilterMethod.BAND):
         super().__init__()
         if not truncate > 0:
             raise InputError(f"truncate must be positive, got {truncate}")
@@ -147,15 +158,15 @@ class ScaleSpace(nn.Module):
         self._convs: dict = {}
 
     @property
-    def method(self) -> Pyramid:
+    def method(self) -> FilterMethod:
         return self._method
 
     @method.setter
-    def method(self, value: Pyramid | str) -> None:
+    def method(self, value: FilterMethod | str) -> None:
         try:
-            self._method = Pyramid(value)
+            self._method = FilterMethod(value)
         except ValueError:
-            raise InputError(f"method must be one of {', '.join(Pyramid)}, got {value!r}") from None
+            raise InputError(f"method must be one of {', '.join(FilterMethod)}, got {value!r}") from None
 
     @staticmethod
     def sigma(level: float) -> float:
@@ -206,6 +217,7 @@ class ScaleSpace(nn.Module):
         """:meth:`_band_matrices` of level k."""
         kern = getattr(self, f"kernels_{k}").cpu().numpy()
         radius = (kern.shape[1] - 1) // 2
+        horizontal: Tensor | list[tuple[int, int, int, int, Tensor]]
         if width <= DENSE_WIDTH:
             horizontal = torch.stack([torch.from_numpy(band_matrix(kern[c], width).T) for c in range(3)])
             horizontal = horizontal.to(device=device, dtype=dtype)
@@ -214,8 +226,8 @@ class ScaleSpace(nn.Module):
             for a in range(0, width, _tile(radius)):
                 b = min(a + _tile(radius), width)
                 c0, c1 = band_span(a, b, radius, width)
-                block = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
-                block = torch.from_numpy(block.reshape(c1 - c0, 3 * (b - a)))
+                columns = np.stack([band_matrix(kern[c], width, np.arange(a, b), (c0, c1)).T for c in range(3)], 1)
+                block = torch.from_numpy(columns.reshape(c1 - c0, 3 * (b - a)))
                 horizontal.append((a, b, c0, c1, block.to(device=device, dtype=dtype).contiguous()))
         tiles = []
         for a in range(0, height, _tile(radius)):
@@ -240,7 +252,7 @@ class ScaleSpace(nn.Module):
         itemsize = torch.empty(0, dtype=dtype).element_size()
         total = 0
         for k, radius in enumerate(self.radii(levels)):
-            if self._method is Pyramid.CONV:
+            if self._method is FilterMethod.CONV:
                 total += 8 * (height + width + 4 * radius) + 6 * (2 * radius + 1) * itemsize
                 continue
             if width <= DENSE_WIDTH:
@@ -266,7 +278,7 @@ class ScaleSpace(nn.Module):
 
     def forward(self, images) -> ScaleSpaceOutput:
         x = as_image_batch(images)[:, 0]
-        if self._method is Pyramid.CONV:
+        if self._method is FilterMethod.CONV:
             return self._forward_conv(x)
         batch, height, width = x.shape
         levels = self.num_levels(height, width)
