@@ -48,7 +48,8 @@ def _check_distribution(name: str, table: np.ndarray, shape: tuple) -> None:
 def compound_arcs(feature: Feature, present) -> tuple[list, list]:
     """(parents, children) of ``feature`` among the ``present`` features, by the rules of 4.4.1:
     each compound type says which way the arcs to its components run (``ARCS_TO_COMPONENTS``)."""
-    parents, children = [], []
+    parents: list[Feature] = []
+    children: list[Feature] = []
     own = set(feature.components())
     for other in present:
         if other == feature:
@@ -103,7 +104,9 @@ class ClassNetwork:
         self._parents: dict[Hashable, tuple[Hashable, ...]] = {}
         self._threshold: dict[Hashable, float] = {}
         self._cpt: dict[Hashable, np.ndarray] = {}  # P(F | class, parents...) indexed [c, p1..pk, f]
-        self.parents, self.threshold, self.cpt = (MappingProxyType(d) for d in (self._parents, self._threshold, self._cpt))
+        self.parents: Mapping[Hashable, tuple[Hashable, ...]] = MappingProxyType(self._parents)
+        self.threshold: Mapping[Hashable, float] = MappingProxyType(self._threshold)
+        self.cpt: Mapping[Hashable, np.ndarray] = MappingProxyType(self._cpt)
         self._snapshot: Snapshot | None = None
         self.revision = 0
         self.prior = np.array([0.5, 0.5])

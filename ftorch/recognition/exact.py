@@ -60,8 +60,9 @@ class _Group:
             local = {k: i for i, k in enumerate(keys)}
             table = np.ones((2, 2**m))
             for key in keys:
-                index = tuple(self.bits[:, local[p]] for p in network.parents[key]) + (self.bits[:, local[key]],)
-                table = table * network.cpt[key][(slice(None), *index)]
+                index: tuple[slice | np.ndarray, ...] = (slice(None), *(self.bits[:, local[p]] for p in network.parents[key]),
+                                                         self.bits[:, local[key]])
+                table = table * network.cpt[key][index]
             self.table = table
 
     def evidence(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,7 +113,7 @@ class ExactInference:
         self.singles = np.array([i for i, k in enumerate(network.features) if k not in linked], dtype=np.int64)
         self.single_cpt = (np.stack([network.cpt[network.features[i]] for i in self.singles])
                            if len(self.singles) else np.zeros((0, 2, 2)))
-        neighbours = {k: set() for k in linked}
+        neighbours: dict[Hashable, set[Hashable]] = {k: set() for k in linked}
         for key, parents in network.parents.items():
             for p in parents:
                 neighbours[key].add(p)
@@ -215,7 +216,8 @@ class ExactInference:
             out[self.singles[open_rows]] = information(posterior[None, :, None] * self.single_cpt[open_rows])
         # the products of the groups before g and after g, each multiplied in the order of a
         # cumulative product (a few groups: rows multiplied one by one cost less than np.cumprod)
-        before, after, product = [], [None] * len(self.groups), np.ones(2)
+        product = np.ones(2)
+        before, after = [], [product] * len(self.groups)  # after: every entry set below
         for like in likes:
             before.append(product)
             product = product * like

@@ -187,9 +187,11 @@ def trace(networks: dict[Hashable, ClassNetwork], settings: LearnerSettings, env
     for feature in rec.queried:
         draw.to_locate(feature, every)
     measured = list(dict.fromkeys([*rec.queried, *every.values()]))
-    found = feature_values(measured, env.record(0)) if measured else None
-    where = {f: Location(*(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta)))
-             for j, f in enumerate(measured)}
+    where = {}
+    if measured:
+        found = feature_values(measured, env.record(0))
+        where = {f: Location(*(float(t[j, 0]) for t in (found.x, found.y, found.sigma, found.theta)))
+                 for j, f in enumerate(measured)}
     return Explanation(frozenset(rec.recognized), rec.top, dict(rec.posteriors), dict(rec.beliefs[0]),
                        tuple(_steps(networks, rec, where)), settings.evidence, settings.test_information,
                        env.names[0], env.images[0])

@@ -127,17 +127,17 @@ class Plan:
     """The networks' structure as recognition indexes it: every feature once (``keys``), the
     networks holding each, and each network's slots in the side-by-side information array. It
     depends only on the networks and their feature tuples (not on CPTs or thresholds), so its owner
-    (a learner, for all its recognitions) reuses it while those are the same (``signature``); a
+    (a learner, for all its recognitions) reuses it while those are the same (``structure``); a
     learner keeps the last two, since a search adds a candidate and removes it again."""
 
-    def __init__(self, networks: dict[Hashable, ClassNetwork], signature: tuple):
-        self.signature = signature
+    def __init__(self, networks: dict[Hashable, ClassNetwork], structure: tuple):
+        self.structure = structure
         self.labels, self.nets = list(networks), list(networks.values())
         self.keys = list(dict.fromkeys(k for net in self.nets for k in net.features))
         index = {k: i for i, k in enumerate(self.keys)}
         where = [np.array([index[k] for k in net.features], dtype=np.int64) for net in self.nets]
         self.local = [dict(zip(net.features, range(len(net.features)))) for net in self.nets]
-        self.holders = [[] for _ in self.keys]  # the networks holding each feature, in network order
+        self.holders: list[list[int]] = [[] for _ in self.keys]  # the networks holding each feature, in network order
         for n, net in enumerate(self.nets):
             for key in net.features:
                 self.holders[index[key]].append(n)
@@ -145,7 +145,7 @@ class Plan:
         # the first network's, then its first feature's (the tie rule in the module docstring)
         self.start = np.cumsum([0] + [len(w) for w in where])
         self.slot_key = np.concatenate(where) if self.keys else np.zeros(0, dtype=np.int64)
-        self.slots = [[] for _ in self.keys]  # the slots of each feature
+        self.slots: list[list[int]] = [[] for _ in self.keys]  # the slots of each feature
         for slot, i in enumerate(self.slot_key.tolist()):
             self.slots[i].append(slot)
         self.where = where  # each network's features as key indices, in its order
@@ -180,15 +180,11 @@ class Plan:
             out[n, w] = np.arange(len(w))
         return out
 
-    @staticmethod
-    def signature(networks: dict[Hashable, ClassNetwork]) -> tuple:
-        return tuple((label, net, net.features) for label, net in networks.items())
-
     @classmethod
     def of(cls, networks: dict[Hashable, ClassNetwork], *known: "Plan | None") -> "Plan":
         """The plan of ``networks``: one of the ``known`` plans where it fits them, else a new one."""
-        signature = cls.signature(networks)
-        return next((plan for plan in known if plan is not None and plan.signature == signature), None) or cls(networks, signature)
+        structure = tuple((label, net, net.features) for label, net in networks.items())
+        return next((plan for plan in known if plan is not None and plan.structure == structure), None) or cls(networks, structure)
 
 
 def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashable], float],
@@ -359,8 +355,13 @@ def recognize_block(networks: dict[Hashable, ClassNetwork], values: np.ndarray, 
     if top:
         index = plan.index
         for b, rec in enumerate(out):
-            rec.top = top_class(networks, rec, lambda key, b=b: float(values[index[key], b]), plan, positive_only)
+            rec.top = top_class(networks, rec, _column(values, index, b), plan, positive_only)
     return out
+
+
+def _column(values: np.ndarray, index: dict, b: int) -> Callable[[Hashable], float]:
+    """The measurement of image ``b`` of a block: a feature's value in its column of ``values``."""
+    return lambda key: float(values[index[key], b])
 
 
 class _Block:
@@ -371,7 +372,7 @@ class _Block:
         self.plan, self.count, nets = plan, count, plan.nets
         self.thresholds = np.zeros(plan.holds.shape)
         for n, net in enumerate(nets):
-            self.thresholds[n, plan.where[n]] = [net.threshold[k] for k in net.features]
+            self.thresholds[n, plan.where[n]] = np.array([net.threshold[k] for k in net.features])
         self.states = [np.full((count, len(net.features)), -1, dtype=np.int64) for net in nets]
         evaluated = [engine(net).evaluate(state[0]) for net, state in zip(nets, self.states)]
         self.belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))

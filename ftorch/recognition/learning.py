@@ -36,6 +36,7 @@ from typing import NamedTuple
 import torch
 
 from ..errors import InputError
+from ..space.features import Feature
 from .bayes import ClassNetwork, compound_arcs
 from .candidates import METHODS, CandidateGenerator, in_use, pick
 from .counting import Counting
@@ -285,7 +286,7 @@ class Learning:
                 failed.append(candidate)
         return False
 
-    def _try(self, env: ImageSet, image: int, search: Search, candidate: Hashable, cut: float, images: list[int],
+    def _try(self, env: ImageSet, image: int, search: Search, candidate: Feature, cut: float, images: list[int],
              succeeded: Callable[[Recognition], bool]) -> bool:
         """Alg. 4.8 steps 6-8: add ``candidate`` at ``cut`` to the characterized class's network and keep it
         where ``succeeded(recognition of image)``; else take it out again. The recognition joins the instances."""

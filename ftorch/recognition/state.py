@@ -15,6 +15,7 @@ is refused in one line. Features are referred to by position in a feature table 
 """
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -86,6 +87,13 @@ def _count(value) -> int:
     return value
 
 
+def _index(table: FeatureTable, key: Hashable) -> int:
+    """``key``'s position in ``table``; InputError for a network node that is not an ftorch feature."""
+    if not isinstance(key, Feature):
+        raise InputError(f"{key!r} is not an ftorch feature: only networks of features are saved")
+    return table.index(key)
+
+
 def _cached(env: ImageSet | None, features: list, images: list) -> np.ndarray | None:
     """``env``'s cached values (images, features), the reference of relative instance values; None without ``env``."""
     return None if env is None else env.cache.stored(features, images).T
@@ -93,8 +101,8 @@ def _cached(env: ImageSet | None, features: list, images: list) -> np.ndarray | 
 
 def _networks_state(learning: Learning, table: FeatureTable) -> list:
     return [{
-        "label": label(name), "features": [table.index(f) for f in net.features],
-        "parents": [[table.index(p) for p in net.parents[f]] for f in net.features],
+        "label": label(name), "features": [_index(table, f) for f in net.features],
+        "parents": [[_index(table, p) for p in net.parents[f]] for f in net.features],
         "threshold": [net.threshold[f] for f in net.features],
         "prior": net.prior.tolist(), "cpt": [encode_array(net.cpt[f]) for f in net.features],
     } for name, net in learning.networks.items()]
@@ -104,14 +112,14 @@ def _training_state(learning: Learning, table: FeatureTable, env: ImageSet | Non
     instances = learning.instances
     return {
         "generator": encode_array(learning.generator.get_state().numpy().astype(np.float64)),
-        "discriminates": [[label(c), table.index(f), sorted(map(label, d), key=str)]
+        "discriminates": [[label(c), _index(table, f), sorted(map(label, d), key=str)]
                           for (c, f), d in learning.discriminates.items()],
-        "selected": [[label(c), table.index(f), sorted(map(label, images), key=str)]
+        "selected": [[label(c), _index(table, f), sorted(map(label, images), key=str)]
                      for (c, f), images in learning.counting.selected.items()],
-        "usage": [[table.index(f), n] for f, n in learning.usage.items()],
+        "usage": [[_index(table, f), n] for f, n in learning.usage.items()],
         "instances": {"images": [label(i) for i in instances.images],
                       "labels": [sorted(map(label, labels), key=str) for labels in instances.labels],
-                      "features": [table.index(f) for f in instances.features],
+                      "features": [_index(table, f) for f in instances.features],
                       "values": encode_array(instances.values_table(), _cached(env, instances.features, instances.images))},
     }
 
