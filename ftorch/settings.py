@@ -44,11 +44,12 @@ class Settings:
     __dataclass_fields__: ClassVar[dict[str, Field[Any]]]  # every subclass is a dataclass
 
     def replace(self, **changes):
-        """These settings with ``changes``; InputError naming an unknown option."""
+        """These settings with ``changes`` (the same object without any: an estimator's constructor keeps
+        the settings it is given, as ``sklearn.base.clone`` checks); InputError naming an unknown option."""
         unknown = sorted(set(changes) - set(self.names()))
         if unknown:
             raise InputError(f"unknown {self.WHAT} options {unknown}: expected some of {', '.join(self.names())}")
-        return replace(self, **changes)
+        return replace(self, **changes) if changes else self
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

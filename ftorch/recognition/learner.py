@@ -252,6 +252,8 @@ class DistinctiveFeatureLearner(Learning):
         learner = cls(device=device)
         try:
             learner.load_state_dict(data["learner"])
+        except InputError as err:  # a refusal (a newer schema) rather than damage
+            raise InputError(f"{path}: {err}") from None
         except DAMAGED as err:
             raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
         return learner

@@ -173,7 +173,11 @@ def load_state_dict(learning: Learning, state: dict, features: list[Feature] | N
     features = unpack_features(state["features"]) if features is None else features
     at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
     learning.seed = whole("seed", state["seed"], 0, MAX_SEED)
-    learning.settings = LearnerSettings(**{k: state[k] for k in LearnerSettings.names()})
+    missing = [k for k in LearnerSettings.names() if k not in state]
+    if missing:
+        raise ValueError(f"a state of schema {SCHEMA} without the option {missing[0]!r}")
+    kind = type(learning.settings)  # a subclass's own options, where a file lacks them, at their defaults
+    learning.settings = kind(**{k: state[k] for k in kind.names() if k in state})
     learning.presentations, learning.candidates.sampled = _count(state["presentations"]), _count(state["sampled"])
     sides = state.get("sides")  # files written before sides were recorded have none
     if sides is not None and (not isinstance(sides, list) or len(sides) != 2 or _count(sides[0]) > _count(sides[1])):
