@@ -20,9 +20,10 @@ run: the same network with every linked group contracted by einsum, and pgmpy's
 VariableElimination (one query for the class and one per unobserved feature); all three are
 checked to agree. Then whole recognitions (alg. 4.4's queries, one node observed at a time) with
 the groups' memories of their own evidence against the same networks without them: small compiled
-groups (that network) and one 20-node group contracted by einsum (a 30-node network). Last, alg. 4.4
-for a block of images at once (``recognize_block``) against the one-image path image after image, on
-six such class networks from empty memories; the two must agree bit for bit.
+groups (that network) and one 20-node group contracted by einsum (a 30-node network). Last, the agreement check
+of alg. 4.4 for a block of images at once (``recognize_block``) against the single-image reference
+(``recognize``, image after image), on six such class networks from empty memories: the two must agree
+bit for bit (``block_agreement``).
 
 ``python -m training.bench batching [--data DIR] [--classes N] --json PATH`` replays the feature-value
 computations of one fold's chapter 4 learning (COIL as stored in ``--data``, else the rendered
