@@ -4,13 +4,13 @@ from training import where
 
 def test_each_sample_counts_once_towards_its_innermost_phase(tmp_path, capsys):
     stack = "<module> (training/run.py:90);Fold.run (training/recognition/protocol.py:257)"
-    learn = f"{stack};DistinctiveFeatureLearner.learn (ftorch/recognition/learner.py:380)"
-    search = f"{learn};DistinctiveFeatureLearner._search (ftorch/recognition/learner.py:500)"
+    learn = f"{stack};Learning.learn (ftorch/recognition/learning.py:120)"
+    search = f"{learn};Learning._search (ftorch/recognition/learning.py:260)"
     lines = [
         f"{search};Counting.measure (ftorch/recognition/counting.py:51);values_only (ftorch/space/evaluate.py:181) 30",
-        f"{search};DistinctiveFeatureLearner._learning_recognition (ftorch/recognition/learner.py:410);"
+        f"{search};Learning._learning_recognition (ftorch/recognition/learning.py:190);"
         "ExactInference.evaluate (ftorch/recognition/exact.py:196) 20",
-        f"{learn};DistinctiveFeatureLearner._first_recognition (ftorch/recognition/learner.py:420);"
+        f"{learn};Recognizer.first (ftorch/recognition/recognizer.py:120);"
         "recognize_block (ftorch/recognition/inference.py:190) 10",
         f"{search} 5",
         f"{stack} 5",

@@ -20,9 +20,10 @@ run: the same network with every linked group contracted by einsum, and pgmpy's
 VariableElimination (one query for the class and one per unobserved feature); all three are
 checked to agree. Then whole recognitions (alg. 4.4's queries, one node observed at a time) with
 the groups' memories of their own evidence against the same networks without them: small compiled
-groups (that network) and one 20-node group contracted by einsum (a 30-node network). Last, alg. 4.4
-for a block of images at once (``recognize_block``) against the one-image path image after image, on
-six such class networks from empty memories; the two must agree bit for bit.
+groups (that network) and one 20-node group contracted by einsum (a 30-node network). Last, the agreement check
+of alg. 4.4 for a block of images at once (``recognize_block``) against the single-image reference
+(``recognize``, image after image), on six such class networks from empty memories: the two must agree
+bit for bit (``block_agreement``).
 
 ``python -m training.bench batching [--data DIR] [--classes N] --json PATH`` replays the feature-value
 computations of one fold's chapter 4 learning (COIL as stored in ``--data``, else the rendered
@@ -45,6 +46,8 @@ import json
 import math
 import sys
 import time
+from dataclasses import asdict, dataclass
+from enum import StrEnum
 from typing import NamedTuple
 
 import cv2
@@ -57,7 +60,7 @@ from ftorch.errors import InputError
 from ftorch.images import MIN_LEVELS
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.environment import ImageSet
-from ftorch.recognition.exact import information
+from ftorch.recognition.exact import engine, information
 from ftorch.recognition.inference import Plan, recognize, recognize_block
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.space.evaluate import feature_values
@@ -73,6 +76,15 @@ from training.data.builtin import builtin_scene
 from training.data.datasets import load_task
 
 TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
+
+
+class Benchmark(StrEnum):
+    """The benchmarks, by their command names (module doc)."""
+
+    FEATURES = "features"
+    RECOGNITION = "recognition"
+    BATCHING = "batching"
+    CONTRAST = "contrast"
 
 
 def _once(fn, device: torch.device) -> tuple[float, object]:
@@ -143,80 +155,146 @@ def worst_error(maps: np.ndarray, image: np.ndarray, sigmas: list[float], valid:
     return worst
 
 
-def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> dict:
-    space = ScaleSpace(method=FilterMethod.BAND).to(device)
+@dataclass
+class PyramidFigures:
+    """The pyramid: the band matrices (``FilterMethod.BAND``) against OpenCV and the conv2d bank, times and
+    errors (``rel``: relative to each level's largest response)."""
+
+    batch: int
+    size: list[int]
+    levels: int
+    default: FilterMethod
+    images_per_s: float
+    opencv_images_per_s: float
+    ratio_vs_opencv: float
+    conv_images_per_s: float
+    conv_time_ratio_vs_band: float
+    conv_max_difference_vs_band: float
+    conv_max_rel_difference_vs_band: float
+    conv_bitwise_equal_to_band: bool
+    max_rel_error: float  # the band matrices against scipy
+    conv_max_rel_error: float
+    opencv_max_rel_error: float
+    tolerance: float
+    within_tolerance: bool
+
+
+def pyramid_section(images: np.ndarray, device: torch.device, repeats: int) -> PyramidFigures:
+    band = ScaleSpace(method=FilterMethod.BAND).to(device)
     conv = ScaleSpace(method=FilterMethod.CONV).to(device)
     batch = torch.from_numpy(images).to(device)
-    sigmas = [space.sigma(k) for k in range(space.num_levels(*images.shape[1:]))]
-    (seconds, out), (conv_seconds, conv_out), (cv_seconds, cv_maps) = _interleaved(
-        [lambda: space(batch), lambda: conv(batch), lambda: opencv_basis(images, sigmas, space.truncate)], repeats, device)
-    valid = out.valid.cpu().numpy()
-    ours_err = worst_error(out.responses[0].cpu().numpy(), images[0], sigmas, valid, space.truncate)
-    conv_err = worst_error(conv_out.responses[0].cpu().numpy(), images[0], sigmas, valid, space.truncate)
-    cv_err = worst_error(cv_maps[0], images[0], sigmas, valid, space.truncate)
+    sigmas = [band.sigma(k) for k in range(band.num_levels(*images.shape[1:]))]
+    (band_seconds, band_out), (conv_seconds, conv_out), (opencv_seconds, opencv_maps) = _interleaved(
+        [lambda: band(batch), lambda: conv(batch), lambda: opencv_basis(images, sigmas, band.truncate)], repeats, device)
+    valid = band_out.valid.cpu().numpy()
+    band_error = worst_error(band_out.responses[0].cpu().numpy(), images[0], sigmas, valid, band.truncate)
+    conv_error = worst_error(conv_out.responses[0].cpu().numpy(), images[0], sigmas, valid, band.truncate)
+    opencv_error = worst_error(opencv_maps[0], images[0], sigmas, valid, band.truncate)
     # conv2d bank vs band matrices on every image and pixel, relative to each level's largest response
-    level_max = out.responses.abs().amax(dim=(0, 2, 3, 4)).double()
-    difference = (conv_out.responses - out.responses).abs().amax(dim=(0, 2, 3, 4)).double()
-    n = len(images)
-    return {
-        "batch": n, "size": list(images.shape[1:]), "levels": len(sigmas), "default": str(ScaleSpace().method),
-        "images_per_s": n / seconds, "opencv_images_per_s": n / cv_seconds,
-        "ratio_vs_opencv": cv_seconds / seconds,
-        "conv_images_per_s": n / conv_seconds, "conv_time_ratio_vs_band": conv_seconds / seconds,
-        "conv_max_difference_vs_band": float(difference.max()),
-        "conv_max_rel_difference_vs_band": float((difference / level_max).max()),
-        "conv_bitwise_equal_to_band": bool(torch.equal(conv_out.responses, out.responses)),
-        "max_rel_error": ours_err, "conv_max_rel_error": conv_err, "opencv_max_rel_error": cv_err, "tolerance": TOLERANCE,
-        "within_tolerance": max(ours_err, conv_err, cv_err) <= TOLERANCE,
-    }
+    level_max = band_out.responses.abs().amax(dim=(0, 2, 3, 4)).double()
+    difference = (conv_out.responses - band_out.responses).abs().amax(dim=(0, 2, 3, 4)).double()
+    count = len(images)
+    return PyramidFigures(
+        batch=count, size=list(images.shape[1:]), levels=len(sigmas), default=ScaleSpace().method,
+        images_per_s=count / band_seconds, opencv_images_per_s=count / opencv_seconds, ratio_vs_opencv=opencv_seconds / band_seconds,
+        conv_images_per_s=count / conv_seconds, conv_time_ratio_vs_band=conv_seconds / band_seconds,
+        conv_max_difference_vs_band=float(difference.max()),
+        conv_max_rel_difference_vs_band=float((difference / level_max).max()),
+        conv_bitwise_equal_to_band=bool(torch.equal(conv_out.responses, band_out.responses)),
+        max_rel_error=band_error, conv_max_rel_error=conv_error, opencv_max_rel_error=opencv_error, tolerance=TOLERANCE,
+        within_tolerance=max(band_error, conv_error, opencv_error) <= TOLERANCE)
 
 
-def evaluation_section(features, records, repeats: int, device: torch.device, reference_features, reference_images) -> dict:
-    seconds, ours = _timed(lambda: feature_values(features, records), repeats, device)
-    evals = len(features) * len(records)
+@dataclass
+class RecordFigures:
+    """The whole per-image record: images per second and salient points per image."""
+
+    images_per_s: float
+    texels_per_image: float
+    edgels_per_image: float
+
+
+@dataclass
+class EvaluationFigures:
+    """(feature, image) evaluations of one kind of feature, against the per-point reference loop on a subset."""
+
+    features: int
+    images: int
+    evals_per_s: float
+    reference_evals_per_s: float
+    ratio_vs_reference: float
+    max_error_vs_reference: float
+
+
+def evaluation_section(features, records, repeats: int, device: torch.device, reference_features: int,
+                       reference_images: int) -> EvaluationFigures:
+    seconds, batched = _timed(lambda: feature_values(features, records), repeats, device)
+    rate = len(features) * len(records) / seconds
     cpu_records = records[: reference_images].to("cpu")
     start = time.perf_counter()
     expected = reference_values(features[:reference_features], cpu_records)
-    ref_seconds = time.perf_counter() - start
-    ref_rate = reference_features * reference_images / ref_seconds
-    rate = evals / seconds
-    found = ours.values[:reference_features, :reference_images].double().cpu().numpy()
-    return {"features": len(features), "images": len(records), "evals_per_s": rate,
-            "reference_evals_per_s": ref_rate, "ratio_vs_reference": rate / ref_rate,
-            "max_error_vs_reference": float(np.abs(found - expected).max())}
+    reference_seconds = time.perf_counter() - start
+    reference_rate = reference_features * reference_images / reference_seconds
+    found = batched.values[:reference_features, :reference_images].double().cpu().numpy()
+    return EvaluationFigures(features=len(features), images=len(records), evals_per_s=rate,
+                             reference_evals_per_s=reference_rate, ratio_vs_reference=rate / reference_rate,
+                             max_error_vs_reference=float(np.abs(found - expected).max()))
 
 
-def features(args) -> dict:
+@dataclass
+class FeaturesReport:
+    """The ``features`` benchmark (module doc), fields in the JSON file's order."""
+
+    device: str
+    torch: str
+    threads: int
+    opencv_threads: int
+    quick: bool
+    pyramid: PyramidFigures
+    record: RecordFigures
+    edgel_pair: EvaluationFigures
+    edgel3: EvaluationFigures
+    texel: EvaluationFigures
+    geometric3: EvaluationFigures
+    boolean: EvaluationFigures
+
+    def evaluations(self) -> list[tuple[str, EvaluationFigures]]:
+        """The kinds of feature in the printed table's order."""
+        return [("texel", self.texel), ("edgel_pair", self.edgel_pair), ("edgel3", self.edgel3),
+                ("geometric3", self.geometric3), ("boolean", self.boolean)]
+
+
+def features(args) -> FeaturesReport:
     device = resolve_device(args.device)
     repeats = 4 if args.quick else 10
     images = bench_images(32)
-    report = {"device": str(device), "torch": torch.__version__, "threads": torch.get_num_threads(),
-              "opencv_threads": cv2.getNumThreads(), "quick": bool(args.quick)}
-    report["pyramid"] = pyramid_section(images, device, repeats)
+    pyramid = pyramid_section(images, device, repeats)
 
     space = FeatureSpace().to(device)
     batch = torch.from_numpy(images).to(device)
     seconds, records = _timed(lambda: space(batch), repeats, device)
-    counts = records.counts()
-    report["record"] = {"images_per_s": len(images) / seconds,
-                        "texels_per_image": float(np.mean(np.add(counts["blobs"], counts["corners"]))),
-                        "edgels_per_image": float(np.mean(counts["edgels"]))}
+    counts = records.counts()  # ftorch's dict of point counts per image, by kind
+    record = RecordFigures(images_per_s=len(images) / seconds,
+                           texels_per_image=float(np.mean(np.add(counts["blobs"], counts["corners"]))),
+                           edgels_per_image=float(np.mean(counts["edgels"])))
 
-    g = torch.Generator().manual_seed(0)
-    n_feat = 16 if args.quick else 64
-    texels = [random_texel(records, i % len(records), g) for i in range(n_feat)]
-    geometric3 = [expand_geometric(expand_geometric(t, records, i % len(records), g), records, i % len(records), g)
-                  for i, t in enumerate(texels[: n_feat // 2])]
-    boolean = [(Conjunction if i % 2 else Disjunction)(texels[i], geometric3[i]) for i in range(n_feat // 2)]
-    pairs = [random_edgel_pair(records, i % len(records), g) for i in range(n_feat)]
-    edgel3 = [expand_geometric(p, records, i % len(records), g) for i, p in enumerate(pairs[: n_feat // 2])]
-    ref_images = 2
-    report["edgel_pair"] = evaluation_section(pairs, records, repeats, device, 2, ref_images)
-    report["edgel3"] = evaluation_section(edgel3, records, repeats, device, 2, ref_images)
-    report["texel"] = evaluation_section(texels, records, repeats, device, 4, ref_images)
-    report["geometric3"] = evaluation_section(geometric3, records, repeats, device, 2, ref_images)
-    report["boolean"] = evaluation_section(boolean, records, repeats, device, 2, ref_images)
-    return report
+    generator = torch.Generator().manual_seed(0)
+    count = 16 if args.quick else 64
+    texels = [random_texel(records, i % len(records), generator) for i in range(count)]
+    geometric3 = [expand_geometric(expand_geometric(t, records, i % len(records), generator), records, i % len(records), generator)
+                  for i, t in enumerate(texels[: count // 2])]
+    boolean = [(Conjunction if i % 2 else Disjunction)(texels[i], geometric3[i]) for i in range(count // 2)]
+    pairs = [random_edgel_pair(records, i % len(records), generator) for i in range(count)]
+    edgel3 = [expand_geometric(p, records, i % len(records), generator) for i, p in enumerate(pairs[: count // 2])]
+    reference_images = 2
+    return FeaturesReport(
+        device=str(device), torch=torch.__version__, threads=torch.get_num_threads(), opencv_threads=cv2.getNumThreads(),
+        quick=bool(args.quick), pyramid=pyramid, record=record,
+        edgel_pair=evaluation_section(pairs, records, repeats, device, 2, reference_images),
+        edgel3=evaluation_section(edgel3, records, repeats, device, 2, reference_images),
+        texel=evaluation_section(texels, records, repeats, device, 4, reference_images),
+        geometric3=evaluation_section(geometric3, records, repeats, device, 2, reference_images),
+        boolean=evaluation_section(boolean, records, repeats, device, 2, reference_images))
 
 
 def learned_like_network(rng: np.random.Generator, table_limit: int = ClassNetwork.TABLE_LIMIT,
@@ -262,16 +340,16 @@ def _random_cpts(net: ClassNetwork, rng: np.random.Generator) -> ClassNetwork:
 
 def forget_groups(net: ClassNetwork) -> None:
     """Empty every group's memory of its own evidence (compiled tables and einsum contractions)."""
-    for group in net.inference.groups:
+    for group in engine(net).groups:
         group.given.clear()
         group.contracted.clear()
 
 
 def infer_afresh(net: ClassNetwork, state: np.ndarray) -> tuple[float, np.ndarray]:
-    """``net.inference.infer(state)`` with the groups' memories emptied first (:func:`forget_groups`): the
+    """``engine(net).infer(state)`` with the groups' memories emptied first (:func:`forget_groups`): the
     inference itself, not a lookup (random evidence sets meet most small groups' states again)."""
     forget_groups(net)
-    return net.inference.infer(state)
+    return engine(net).infer(state)
 
 
 def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = False) -> list[tuple[float, np.ndarray]]:
@@ -284,7 +362,7 @@ def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = Fal
         while True:
             if forget:
                 forget_groups(net)
-            posterior, info = net.inference.evaluate(state)
+            posterior, info = engine(net).evaluate(state)
             out.append((posterior, info))
             best = int(np.argmax(np.where(state < 0, info, -1.0)))
             if state[best] >= 0 or not info[best] > 0:
@@ -294,26 +372,61 @@ def recognitions(net: ClassNetwork, truths: list[np.ndarray], forget: bool = Fal
     return out
 
 
-def memory_section(build, truths: int, repeats: int) -> dict:
+def _largest_difference(ours: list[tuple[float, np.ndarray]], theirs: list[tuple[float, np.ndarray]]) -> float:
+    """The largest over evaluations of |posterior difference| + max |information difference|."""
+    return max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
+
+
+@dataclass
+class MemoryFigures:
+    """Recognitions with the groups' memories of their own evidence against the same without them."""
+
+    nodes: int
+    groups: list[int]  # the linked groups' sizes
+    recognitions: int
+    evaluations: int
+    seconds: float
+    seconds_without_memory: float
+    ratio_vs_without_memory: float
+    max_difference_vs_without_memory: float
+
+
+def memory_section(build, truths: int, repeats: int) -> MemoryFigures:
     """Recognitions on the network ``build()`` makes, with the groups' memories of their own
     evidence against the same network emptying them before every evaluation (as computing each
     afresh), from empty memories every repeat."""
     probe = build()
     rng = np.random.default_rng(1)
     states = [rng.integers(0, 2, len(probe.features)) for _ in range(truths)]
-    (fast, ours), (slow, theirs) = _interleaved([lambda: recognitions(build(), states),
-                                                 lambda: recognitions(build(), states, forget=True)],
-                                                repeats, torch.device("cpu"))
-    difference = max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
-    return {"nodes": len(probe.features), "groups": sorted(len(g.keys) for g in probe.inference.groups),
-            "recognitions": truths, "evaluations": len(ours), "seconds": fast, "seconds_without_memory": slow,
-            "ratio_vs_without_memory": slow / fast, "max_difference_vs_without_memory": difference}
+    (fast, remembering), (slow, forgetting) = _interleaved([lambda: recognitions(build(), states),
+                                                            lambda: recognitions(build(), states, forget=True)],
+                                                           repeats, torch.device("cpu"))
+    return MemoryFigures(nodes=len(probe.features), groups=sorted(len(group.keys) for group in engine(probe).groups),
+                         recognitions=truths, evaluations=len(remembering), seconds=fast, seconds_without_memory=slow,
+                         ratio_vs_without_memory=slow / fast,
+                         max_difference_vs_without_memory=_largest_difference(remembering, forgetting))
 
 
-def block_section(images: int, repeats: int) -> dict:
-    """Alg. 4.4 for a block of ``images`` images at once (``recognize_block``) against the one-image path
-    (``recognize``, image after image) on six learned-like class networks sharing two features, random
-    values, both from fresh networks (empty memories) every repeat; their recognitions must agree bit for bit."""
+@dataclass
+class BlockAgreement:
+    """Alg. 4.4 for a block of images (``recognize_block``) checked against the single-image reference
+    (``recognize``, image after image): times, and whether every recognition agrees bit for bit."""
+
+    networks: int
+    features: int
+    images: int
+    queries: int
+    seconds: float
+    seconds_one_by_one: float
+    ratio_vs_one_by_one: float
+    bitwise_equal: bool
+
+
+def block_agreement(images: int, repeats: int) -> BlockAgreement:
+    """``recognize_block`` on ``images`` images at once against the reference ``recognize``, image after
+    image, on six learned-like class networks sharing two features, random values, both from fresh
+    networks (empty memories) every repeat; their recognitions (queries, values, beliefs, recognized
+    classes) must agree bit for bit."""
     def networks() -> dict:
         return {label: learned_like_network(np.random.default_rng(10 + i), label=label) for i, label in enumerate("ABCDEF")}
 
@@ -322,18 +435,36 @@ def block_section(images: int, repeats: int) -> dict:
 
     def one_by_one():
         nets = networks()
-        return [recognize(nets, dict(zip(plan.keys, values[:, b].tolist())).__getitem__) for b in range(images)]
+        return [recognize(nets, dict(zip(plan.keys, values[:, image].tolist())).__getitem__) for image in range(images)]
 
-    (fast, ours), (slow, theirs) = _interleaved([lambda: recognize_block(networks(), values), one_by_one],
-                                                repeats, torch.device("cpu"))
+    (fast, block), (slow, reference) = _interleaved([lambda: recognize_block(networks(), values), one_by_one],
+                                                    repeats, torch.device("cpu"))
     same = all((a.queried, a.values, a.beliefs, a.recognized) == (b.queried, b.values, b.beliefs, b.recognized)
-               for a, b in zip(ours, theirs))
-    return {"networks": 6, "features": len(plan.keys), "images": images,
-            "queries": sum(len(r.queried) for r in ours), "seconds": fast, "seconds_one_by_one": slow,
-            "ratio_vs_one_by_one": slow / fast, "bitwise_equal": same}
+               for a, b in zip(block, reference))
+    return BlockAgreement(networks=6, features=len(plan.keys), images=images,
+                          queries=sum(len(rec.queried) for rec in block), seconds=fast, seconds_one_by_one=slow,
+                          ratio_vs_one_by_one=slow / fast, bitwise_equal=same)
 
 
-def recognition(args) -> dict:
+@dataclass
+class RecognitionReport:
+    """The ``recognition`` benchmark (module doc), fields in the JSON file's order."""
+
+    nodes: int
+    evidence_sets: int
+    evaluations_per_s: float
+    einsum_evaluations_per_s: float
+    pgmpy_evaluations_per_s: float
+    ratio_vs_einsum: float
+    ratio_vs_pgmpy: float
+    max_difference_vs_einsum: float
+    max_difference_vs_pgmpy: float
+    small_groups: MemoryFigures  # compiled groups of 2 to 4 nodes
+    large_group: MemoryFigures  # one 20-node group contracted by einsum
+    block: BlockAgreement
+
+
+def recognition(args) -> RecognitionReport:
     from pgmpy.inference import VariableElimination
 
     rng = np.random.default_rng(0)
@@ -341,44 +472,41 @@ def recognition(args) -> dict:
     # the baseline contracts every group by einsum; both empty the groups' memories first, which
     # would answer most of these evidence sets, timing no contraction at all (infer_afresh)
     einsum = learned_like_network(np.random.default_rng(0), table_limit=0)
-    n = len(net.features)
-    states = [np.where(rng.random(n) < 0.4, rng.integers(0, 2, n), -1) for _ in range(200 if args.quick else 1000)]
+    nodes = len(net.features)
+    states = [np.where(rng.random(nodes) < 0.4, rng.integers(0, 2, nodes), -1) for _ in range(200 if args.quick else 1000)]
     device = torch.device("cpu")
     repeats = 3 if args.quick else 5
-    (fast, ours), (slow, theirs) = _interleaved([lambda: [infer_afresh(net, x) for x in states],
-                                                 lambda: [infer_afresh(einsum, x) for x in states]], repeats, device)
+    (fast, ours), (slow, contracted) = _interleaved([lambda: [infer_afresh(net, x) for x in states],
+                                                     lambda: [infer_afresh(einsum, x) for x in states]], repeats, device)
     model = VariableElimination(net.to_pgmpy())
     name = net.node_names()
-    few = states[:10 if args.quick else 30]
+    pgmpy_states = states[:10 if args.quick else 30]
 
     def pgmpy_all():
         out = []
-        for x in few:
+        for x in pgmpy_states:
             evidence = {name[k]: int(x[i]) for i, k in enumerate(net.features) if x[i] >= 0}
-            post = model.query(["class"], evidence=evidence, show_progress=False).values[1]
-            infos = []
+            posterior = model.query(["class"], evidence=evidence, show_progress=False).values[1]
+            informations = []
             for i, k in enumerate(net.features):
                 if x[i] < 0:
                     joint = model.query(["class", name[k]], evidence=evidence, show_progress=False)
                     table = np.transpose(joint.values, [joint.variables.index("class"), joint.variables.index(name[k])])
-                    infos.append(information(table[None])[0])
-            out.append((post, np.array(infos)))
+                    informations.append(information(table[None])[0])
+            out.append((posterior, np.array(informations)))
         return out
 
-    pg_seconds, pg = _timed(pgmpy_all, 1, device)
-    agree = max(abs(a[0] - b[0]) + float(np.abs(a[1] - b[1]).max()) for a, b in zip(ours, theirs))
-    agree_pgmpy = max(abs(ours[j][0] - pg[j][0]) + float(np.abs(ours[j][1][few[j] < 0] - pg[j][1]).max())
-                      for j in range(len(few)))
-    return {"nodes": n, "evidence_sets": len(states), "evaluations_per_s": len(states) / fast,
-            "einsum_evaluations_per_s": len(states) / slow, "pgmpy_evaluations_per_s": len(few) / pg_seconds,
-            "ratio_vs_einsum": slow / fast, "ratio_vs_pgmpy": (pg_seconds / len(few)) / (fast / len(states)),
-            "max_difference_vs_einsum": agree, "max_difference_vs_pgmpy": agree_pgmpy,
-            # compiled groups of 2 to 4 nodes; one 20-node group contracted by einsum
-            "small_groups": memory_section(lambda: learned_like_network(np.random.default_rng(2)),
-                                           20 if args.quick else 100, repeats),
-            "large_group": memory_section(lambda: large_group_network(np.random.default_rng(1)),
-                                          5 if args.quick else 20, repeats),
-            "block": block_section(20 if args.quick else 60, repeats)}
+    pgmpy_seconds, pgmpy_answers = _timed(pgmpy_all, 1, device)
+    unobserved = [(posterior, informations[x < 0]) for (posterior, informations), x in zip(ours, pgmpy_states)]
+    return RecognitionReport(
+        nodes=nodes, evidence_sets=len(states), evaluations_per_s=len(states) / fast,
+        einsum_evaluations_per_s=len(states) / slow, pgmpy_evaluations_per_s=len(pgmpy_states) / pgmpy_seconds,
+        ratio_vs_einsum=slow / fast, ratio_vs_pgmpy=(pgmpy_seconds / len(pgmpy_states)) / (fast / len(states)),
+        max_difference_vs_einsum=_largest_difference(ours, contracted),
+        max_difference_vs_pgmpy=_largest_difference(unobserved, pgmpy_answers),
+        small_groups=memory_section(lambda: learned_like_network(np.random.default_rng(2)), 20 if args.quick else 100, repeats),
+        large_group=memory_section(lambda: large_group_network(np.random.default_rng(1)), 5 if args.quick else 20, repeats),
+        block=block_agreement(20 if args.quick else 60, repeats))
 
 
 class _Call(NamedTuple):
@@ -424,7 +552,30 @@ def _differing(a: np.ndarray, b: np.ndarray) -> int:
     return int((a != b).any(1).sum())
 
 
-def batching(args) -> dict:
+@dataclass
+class BatchingReport:
+    """The ``batching`` benchmark (module doc), fields in the JSON file's order."""
+
+    task: str
+    classes: int
+    images: int
+    learning_seconds: float
+    calls: int
+    searches: int
+    median_features: float
+    median_images: float
+    merged_calls: int
+    seconds_one_by_one: float
+    seconds_per_search: float
+    ratio_vs_one_by_one: float
+    replay_differing: int  # values that differ when the calls are made again as the cache made them
+    values: int
+    values_differing: int
+    differing_with_more_features: int
+    differing_with_more_images: int
+
+
+def batching(args) -> BatchingReport:
     task = (load_task("coil", args.data, args.classes) if args.data is not None
             else load_task("plym", classes=args.classes, size=64))
     train, _ = task.fold(1)
@@ -466,68 +617,89 @@ def batching(args) -> dict:
             differ += _differing(call.values, values[np.ix_(rows, columns)])
             by_features += _differing(call.values, compute(features, call.images)[rows])
             by_images += _differing(call.values, compute(call.features, images)[:, columns])
-    return {"task": task.name, "classes": len(task.classes()), "images": len(train), "learning_seconds": learning,
-            "calls": len(calls), "searches": sum(1 for g in groups if g[0].search is not None),
-            "median_features": float(np.median([len(c.features) for c in calls])),
-            "median_images": float(np.median([len(c.images) for c in calls])),
-            "merged_calls": len(merged), "seconds_one_by_one": alone, "seconds_per_search": together,
-            "ratio_vs_one_by_one": alone / together, "replay_differing": replay_differing,
-            "values": total, "values_differing": differ,
-            "differing_with_more_features": by_features, "differing_with_more_images": by_images}
+    return BatchingReport(
+        task=task.name, classes=len(task.classes()), images=len(train), learning_seconds=learning,
+        calls=len(calls), searches=sum(1 for group in groups if group[0].search is not None),
+        median_features=float(np.median([len(call.features) for call in calls])),
+        median_images=float(np.median([len(call.images) for call in calls])),
+        merged_calls=len(merged), seconds_one_by_one=alone, seconds_per_search=together,
+        ratio_vs_one_by_one=alone / together, replay_differing=replay_differing,
+        values=total, values_differing=differ, differing_with_more_features=by_features, differing_with_more_images=by_images)
 
 
-def print_batching(report: dict) -> None:
+def print_batching(report: BatchingReport) -> None:
     r = report
-    print(f"{r['task']}, {r['classes']} classes, fold 1 ({r['images']} images), stage 0: learning {r['learning_seconds']:.1f} s, "
-          f"{r['calls']} value computations (median {r['median_features']:.0f} features x {r['median_images']:.0f} images), "
-          f"{r['searches']} searches")
-    print(f"one by one {r['seconds_one_by_one']:.2f} s, one call per search ({r['merged_calls']} calls) "
-          f"{r['seconds_per_search']:.2f} s (ratio {r['ratio_vs_one_by_one']:.2f}); the calls made again as made: "
-          f"{'bit for bit the same' if not r['replay_differing'] else str(r['replay_differing']) + ' values DIFFERENT'}")
-    print(f"values differing in some bit: {r['values_differing']} of {r['values']} "
-          f"(with more features in the call {r['differing_with_more_features']}, with more images {r['differing_with_more_images']})"
-          f"{'' if r['values_differing'] else ': merging is exact here'}")
+    print(f"{r.task}, {r.classes} classes, fold 1 ({r.images} images), stage 0: learning {r.learning_seconds:.1f} s, "
+          f"{r.calls} value computations (median {r.median_features:.0f} features x {r.median_images:.0f} images), "
+          f"{r.searches} searches")
+    print(f"one by one {r.seconds_one_by_one:.2f} s, one call per search ({r.merged_calls} calls) "
+          f"{r.seconds_per_search:.2f} s (ratio {r.ratio_vs_one_by_one:.2f}); the calls made again as made: "
+          f"{'bit for bit the same' if not r.replay_differing else str(r.replay_differing) + ' values DIFFERENT'}")
+    print(f"values differing in some bit: {r.values_differing} of {r.values} "
+          f"(with more features in the call {r.differing_with_more_features}, with more images {r.differing_with_more_images})"
+          f"{'' if r.values_differing else ': merging is exact here'}")
 
 
-def print_recognition(report: dict) -> None:
+def print_recognition(report: RecognitionReport) -> None:
     r = report
-    print(f"evaluate (posterior + {r['nodes']} informations): {r['evaluations_per_s']:9.0f}/s  "
-          f"einsum groups {r['einsum_evaluations_per_s']:8.0f}/s (ratio {r['ratio_vs_einsum']:.1f})  "
-          f"pgmpy VE {r['pgmpy_evaluations_per_s']:6.1f}/s (ratio {r['ratio_vs_pgmpy']:.0f})")
-    print(f"agreement: {r['max_difference_vs_einsum']:.1e} vs einsum, {r['max_difference_vs_pgmpy']:.1e} vs pgmpy")
-    for name, how in (("small_groups", "tables"), ("large_group", "einsum beyond 14")):
-        g = r[name]
-        print(f"{name.replace('_', ' ')} ({'+'.join(map(str, g['groups']))} of {g['nodes']} nodes, {how}), "
-              f"{g['recognitions']} recognitions, {g['evaluations']} evaluations: {g['seconds']:.2f} s, without the "
-              f"groups' memory {g['seconds_without_memory']:.2f} s (ratio {g['ratio_vs_without_memory']:.2f}), "
-              f"max difference {g['max_difference_vs_without_memory']:.1e}")
-    b = r["block"]
-    print(f"block of {b['images']} images ({b['networks']} networks, {b['features']} features, {b['queries']} queries): "
-          f"{b['seconds']:.2f} s, one image at a time {b['seconds_one_by_one']:.2f} s (ratio {b['ratio_vs_one_by_one']:.2f}), "
-          f"{'bit for bit the same' if b['bitwise_equal'] else 'DIFFERENT'}")
+    print(f"evaluate (posterior + {r.nodes} informations): {r.evaluations_per_s:9.0f}/s  "
+          f"einsum groups {r.einsum_evaluations_per_s:8.0f}/s (ratio {r.ratio_vs_einsum:.1f})  "
+          f"pgmpy VE {r.pgmpy_evaluations_per_s:6.1f}/s (ratio {r.ratio_vs_pgmpy:.0f})")
+    print(f"agreement: {r.max_difference_vs_einsum:.1e} vs einsum, {r.max_difference_vs_pgmpy:.1e} vs pgmpy")
+    for name, how, memory in (("small groups", "tables", r.small_groups), ("large group", "einsum beyond 14", r.large_group)):
+        print(f"{name} ({'+'.join(map(str, memory.groups))} of {memory.nodes} nodes, {how}), "
+              f"{memory.recognitions} recognitions, {memory.evaluations} evaluations: {memory.seconds:.2f} s, without the "
+              f"groups' memory {memory.seconds_without_memory:.2f} s (ratio {memory.ratio_vs_without_memory:.2f}), "
+              f"max difference {memory.max_difference_vs_without_memory:.1e}")
+    block = r.block
+    print(f"block of {block.images} images ({block.networks} networks, {block.features} features, {block.queries} queries): "
+          f"{block.seconds:.2f} s, one image at a time {block.seconds_one_by_one:.2f} s (ratio {block.ratio_vs_one_by_one:.2f}), "
+          f"{'bit for bit the same' if block.bitwise_equal else 'DIFFERENT'}")
 
 
-def print_report(report: dict) -> None:
-    p = report["pyramid"]
-    print(f"device {report['device']}, torch {report['torch']}, {report['threads']} threads")
-    print(f"pyramid   {p['batch']}x{p['size'][0]}x{p['size'][1]}, {p['levels']} levels: "
-          f"{p['images_per_s']:8.1f} images/s  opencv {p['opencv_images_per_s']:8.1f}  ratio {p['ratio_vs_opencv']:.2f}")
-    print(f"          conv2d bank {p['conv_images_per_s']:8.1f} images/s, time conv / band "
-          f"{p['conv_time_ratio_vs_band']:.2f} (default: {p['default']}), max difference vs band "
-          f"{p['conv_max_difference_vs_band']:.1e} ({p['conv_max_rel_difference_vs_band']:.1e} of the level's largest), "
-          f"{'bit for bit' if p['conv_bitwise_equal_to_band'] else 'not bit for bit'}")
-    print(f"          max error vs scipy {p['max_rel_error']:.1e} (conv2d {p['conv_max_rel_error']:.1e}, opencv "
-          f"{p['opencv_max_rel_error']:.1e}), tolerance {p['tolerance']:.0e}: {'ok' if p['within_tolerance'] else 'EXCEEDED'}")
-    r = report["record"]
-    print(f"record    {r['images_per_s']:8.1f} images/s  ({r['texels_per_image']:.0f} texels, "
-          f"{r['edgels_per_image']:.0f} edgels per image)")
-    for key in ("texel", "edgel_pair", "edgel3", "geometric3", "boolean"):
-        e = report[key]
-        print(f"{key:10s}{e['evals_per_s']:10.0f} evals/s  reference {e['reference_evals_per_s']:8.2f}  "
-              f"ratio {e['ratio_vs_reference']:.0f}  max error vs reference {e['max_error_vs_reference']:.1e}")
+def print_features(report: FeaturesReport) -> None:
+    p = report.pyramid
+    print(f"device {report.device}, torch {report.torch}, {report.threads} threads")
+    print(f"pyramid   {p.batch}x{p.size[0]}x{p.size[1]}, {p.levels} levels: "
+          f"{p.images_per_s:8.1f} images/s  opencv {p.opencv_images_per_s:8.1f}  ratio {p.ratio_vs_opencv:.2f}")
+    print(f"          conv2d bank {p.conv_images_per_s:8.1f} images/s, time conv / band "
+          f"{p.conv_time_ratio_vs_band:.2f} (default: {p.default}), max difference vs band "
+          f"{p.conv_max_difference_vs_band:.1e} ({p.conv_max_rel_difference_vs_band:.1e} of the level's largest), "
+          f"{'bit for bit' if p.conv_bitwise_equal_to_band else 'not bit for bit'}")
+    print(f"          max error vs scipy {p.max_rel_error:.1e} (conv2d {p.conv_max_rel_error:.1e}, opencv "
+          f"{p.opencv_max_rel_error:.1e}), tolerance {p.tolerance:.0e}: {'ok' if p.within_tolerance else 'EXCEEDED'}")
+    record = report.record
+    print(f"record    {record.images_per_s:8.1f} images/s  ({record.texels_per_image:.0f} texels, "
+          f"{record.edgels_per_image:.0f} edgels per image)")
+    for kind, figures in report.evaluations():
+        print(f"{kind:10s}{figures.evals_per_s:10.0f} evals/s  reference {figures.reference_evals_per_s:8.2f}  "
+              f"ratio {figures.ratio_vs_reference:.0f}  max error vs reference {figures.max_error_vs_reference:.1e}")
 
 
-def contrast(args) -> dict:
+@dataclass
+class ContrastTrial:
+    """One transform a*I + b: the float32 steps the transformed views' range spans (the fewest over the
+    views) and how many of their answers differ from the originals'."""
+
+    a: float
+    b: float
+    steps: float
+    changed: int
+
+
+@dataclass
+class ContrastReport:
+    """The ``contrast`` benchmark (module doc), fields in the JSON file's order."""
+
+    task: str
+    views: int
+    trials: list[ContrastTrial]
+    min_levels: int
+    most_steps_with_a_change: float | None
+    fewest_steps_without_a_change: float | None
+
+
+def contrast(args) -> ContrastReport:
     """The ``contrast`` benchmark (module doc): per trial, the steps of float32 the transformed views'
     range spans (the fewest over the views) and how many of their answers differ from the originals'."""
     task = (load_task("coil", args.data, 4, 12) if args.data else load_task("plym", classes=4, views=12, size=40))
@@ -544,38 +716,37 @@ def contrast(args) -> dict:
         given = [(v * a + b).float() for v in views]  # what a user's float32 conversion keeps
         steps = min(float(x.max() - x.min()) / float(np.spacing(np.float32(x.abs().max()))) for x in given)
         answers = learner.predict([x.double() - float(x.min()) for x in given])  # the offset removed exactly
-        trials.append({"a": a, "b": b, "steps": steps, "changed": sum(x != y for x, y in zip(answers, original))})
-    changed = [t["steps"] for t in trials if t["changed"]]
-    return {"task": task.name, "views": len(views), "trials": trials, "min_levels": MIN_LEVELS,
-            "most_steps_with_a_change": max(changed, default=None),
-            "fewest_steps_without_a_change": min((t["steps"] for t in trials if not t["changed"]), default=None)}
+        trials.append(ContrastTrial(a=a, b=b, steps=steps, changed=sum(x != y for x, y in zip(answers, original))))
+    return ContrastReport(task=task.name, views=len(views), trials=trials, min_levels=MIN_LEVELS,
+                          most_steps_with_a_change=max((t.steps for t in trials if t.changed), default=None),
+                          fewest_steps_without_a_change=min((t.steps for t in trials if not t.changed), default=None))
 
 
-def print_contrast(report: dict) -> None:
+def print_contrast(report: ContrastReport) -> None:
     for low, high in ((0, 1e3), (1e3, 3e3), (3e3, 1e4), (1e4, 3e4), (3e4, 1e5), (1e5, math.inf)):
-        band = [t for t in report["trials"] if low <= t["steps"] < high]
+        band = [t for t in report.trials if low <= t.steps < high]
         if band:
-            print(f"{low:8.0f} to {high:8.0f} steps: {len(band):3d} trials, answers changed in {sum(t['changed'] > 0 for t in band):3d} "
-                  f"({sum(t['changed'] for t in band)} of {len(band) * report['views']} answers)")
-    print(f"answers changed at up to {report['most_steps_with_a_change']} steps; ftorch refuses float images of fewer than "
-          f"{report['min_levels']}")
+            print(f"{low:8.0f} to {high:8.0f} steps: {len(band):3d} trials, answers changed in {sum(t.changed > 0 for t in band):3d} "
+                  f"({sum(t.changed for t in band)} of {len(band) * report.views} answers)")
+    print(f"answers changed at up to {report.most_steps_with_a_change} steps; ftorch refuses float images of fewer than "
+          f"{report.min_levels}")
 
 
 def parser() -> argparse.ArgumentParser:
     top = Parser(prog="python -m training.bench", description=__doc__.split("\n\n")[0])
     commands = top.add_subparsers(dest="command", required=True)
-    p = commands.add_parser("features", help="feature-space benchmark")
+    p = commands.add_parser(Benchmark.FEATURES, help="feature-space benchmark")
     p.add_argument("--quick", action="store_true", help="fewer repeats and features (under a minute)")
     p.add_argument("--device", default="cpu", help="cpu, cuda[:N] or auto (default cpu)")
     p.add_argument("--json", help="write the figures to this JSON file")
-    p = commands.add_parser("recognition", help="exact-inference benchmark (alg. 4.4 inner loop)")
+    p = commands.add_parser(Benchmark.RECOGNITION, help="exact-inference benchmark (alg. 4.4 inner loop)")
     p.add_argument("--quick", action="store_true", help="fewer evidence sets")
     p.add_argument("--json", help="write the figures to this JSON file")
-    p = commands.add_parser("batching", help="feature values one call per search against the value cache's calls")
+    p = commands.add_parser(Benchmark.BATCHING, help="feature values one call per search against the value cache's calls")
     p.add_argument("--data", help="a COIL-20 folder (images as stored); default: the rendered Plym task")
     p.add_argument("--classes", type=at_least(2, "classes"), default=None, help="the first N classes (default: COIL 6, Plym all)")
     p.add_argument("--json", help="write the figures to this JSON file")
-    p = commands.add_parser("contrast", help="answers against the float32 steps a transformed image's range spans")
+    p = commands.add_parser(Benchmark.CONTRAST, help="answers against the float32 steps a transformed image's range spans")
     p.add_argument("--data", help="a COIL-20 folder (images as stored); default: the rendered Plym task")
     p.add_argument("--trials", type=at_least(1, "trials", 10000), default=60, help="transforms drawn (default 60)")
     p.add_argument("--seed", type=at_least(0, "a seed", 2**31 - 1), default=0, help="seed of the transforms (default 0)")
@@ -588,21 +759,22 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.json:
             writable_file(args.json, "--json")  # before the benchmark runs, not after
-        if args.command == "recognition":
+        command = Benchmark(args.command)
+        if command is Benchmark.RECOGNITION:
             report = recognition(args)
             print_recognition(report)
-        elif args.command == "batching":
+        elif command is Benchmark.BATCHING:
             report = batching(args)
             print_batching(report)
-        elif args.command == "contrast":
+        elif command is Benchmark.CONTRAST:
             report = contrast(args)
             print_contrast(report)
         else:
-            resolve_device(args.device)
+            resolve_device(args.device)  # an absent device is refused before the benchmark runs
             report = features(args)
-            print_report(report)
-        if args.json:
-            write_text(args.json, json.dumps(report, indent=2) + "\n")
+            print_features(report)
+        if args.json:  # the JSON boundary: the report's fields, in order
+            write_text(args.json, json.dumps(asdict(report), indent=2) + "\n")
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
