@@ -44,8 +44,11 @@ from tqdm import tqdm
 
 from ftorch import FeatureSpace
 from ftorch.checkpoint import decode_array, encode_array
-from ftorch.grasp.learner import GENERATOR_STATE, Experience, GraspLearner, angular_error
+from ftorch.grasp.feature_set import Experience
+from ftorch.grasp.learner import GraspLearner
+from ftorch.grasp.models import angular_error
 from ftorch.grasp.settings import MU0_CAP, POOR_MU0
+from ftorch.grasp.state import GENERATOR_STATE
 from ftorch.space.record import ImageRecords
 
 from .camera import render
