@@ -191,7 +191,7 @@ class GraspLearner:
     # -- state -----------------------------------------------------------------------------------
     def state_dict(self, training: bool = True) -> dict:
         """JSON-ready: the settings and, per finger count, the features, their models (alg. 6.1) and quality
-        splits; with ``training``, all that learning reads too (:meth:`GraspFeatureSet.state_dict`), the
+        splits; with ``training``, all that learning reads too (ftorch/grasp/state.py), the
         seed and the generator's state, so that a learner restored by :meth:`load_state_dict` learns on
         exactly as this one would (the images themselves are not held: the caller gives their records)."""
         if training and not self.trainable:
