@@ -104,8 +104,8 @@ def test_learner_predicts_hand_orientation_on_clean_grasps(clean_pool):
     learner = GraspLearner.thesis(seed=1)
     fold = GraspFold(1, "clean", clean_pool, 10, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(8)
-    assert fold.epochs[-1]["mistakes"] < fold.epochs[0]["mistakes"]
-    errors = fold.evaluate()["orientation_errors_deg"]
+    assert fold.epochs[-1].mistakes < fold.epochs[0].mistakes
+    errors = fold.evaluate().orientation_errors_deg
     assert np.median([180 if e is None else e for e in errors]) < 10
 
 
