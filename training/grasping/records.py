@@ -125,6 +125,7 @@ class RunConfig(Record):
         return {**self.to_dict(), "mode": str(mode)}
 
     def modes(self) -> tuple[Mode, ...]:
+        """The modes each fold runs in: off-line, and on-line with ``online``."""
         return (Mode.OFFLINE, Mode.ONLINE) if self.online else (Mode.OFFLINE,)
 
 
