@@ -13,8 +13,9 @@ from .errors import InputError
 
 def as_device(value, option: str = "device", expected: str = "cpu, cuda, cuda:N") -> torch.device:
     """``value`` (a :class:`torch.device` or its name: cpu, cuda, cuda:N) as a device this machine
-    has; one InputError naming ``option`` (and what it takes, ``expected``) where it is not a device
-    name or the device is absent."""
+    has, a :class:`torch.device` as it was given (an estimator keeps its parameters as given, which
+    ``sklearn.base.clone`` checks); one InputError naming ``option`` (and what it takes, ``expected``)
+    where it is not a device name or the device is absent."""
     try:
         device = torch.device(value)
     except (RuntimeError, TypeError, ValueError):
@@ -25,7 +26,7 @@ def as_device(value, option: str = "device", expected: str = "cpu, cuda, cuda:N"
         raise InputError(f"{option} {value}: CUDA is not available on this machine")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
         raise InputError(f"{option} {value}: this machine has {torch.cuda.device_count()} CUDA devices")
-    return device
+    return value if isinstance(value, torch.device) else device
 
 
 def option(default, help: str, metavar: str | None = None, at_least: int | None = None, at_most: int | None = None,

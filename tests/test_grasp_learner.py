@@ -1,4 +1,4 @@
-"""Alg. 6.1 and 6.2 (ftorch.grasp.learner): angular errors, feature models against a brute-force re-derivation,
+"""Alg. 6.1 and 6.2 (ftorch.grasp): angular errors, feature models against a brute-force re-derivation,
 discarding, learning on simulated grasps, reproducibility, bad input; and the ``grasp`` command."""
 import json
 import math
@@ -11,7 +11,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
-from ftorch.grasp.learner import Experience, FeatureModel, GraspFeatureSet, GraspLearner, angular_error
+from ftorch.grasp.feature_set import Experience, GraspFeatureSet
+from ftorch.grasp.learner import GraspLearner
+from ftorch.grasp.models import FeatureModel, angular_error
 from ftorch.grasp.settings import FingerChoice
 from ftorch.grasp.vonmises import fit_mixture
 from ftorch.space.evaluate import feature_values
@@ -102,8 +104,8 @@ def test_learner_predicts_hand_orientation_on_clean_grasps(clean_pool):
     learner = GraspLearner.thesis(seed=1)
     fold = GraspFold(1, "clean", clean_pool, 10, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(8)
-    assert fold.epochs[-1]["mistakes"] < fold.epochs[0]["mistakes"]
-    errors = fold.evaluate()["orientation_errors_deg"]
+    assert fold.epochs[-1].mistakes < fold.epochs[0].mistakes
+    errors = fold.evaluate().orientation_errors_deg
     assert np.median([180 if e is None else e for e in errors]) < 10
 
 
@@ -117,7 +119,7 @@ def test_same_seed_same_features_and_models(clean_pool):
 
 
 def test_one_image_is_measured_once_per_set_and_recommending_changes_nothing(clean_pool, monkeypatch):
-    import ftorch.grasp.learner as grasp
+    import ftorch.grasp.feature_set as grasp
     learner = GraspLearner.thesis(seed=0)
     fold = GraspFold(1, "clean", clean_pool, 6, FeatureSpace(), learner, HapticController(), seed=0)
     fold.fit(2)  # F_2 and F_3 now hold features
@@ -358,7 +360,7 @@ def test_a_perfect_feature_not_found_in_the_image_is_absent():
 
 def test_a_saved_grasp_learner_recommends_as_before_and_refuses_to_learn(clean_pool, tmp_path):
     from ftorch import NotFittedError
-    from ftorch.grasp.learner import Experience
+    from ftorch.grasp.feature_set import Experience
 
     learner = GraspLearner(seed=0, mu0_split=0.3)
     with pytest.raises(NotFittedError, match="no feature model yet"):

@@ -127,3 +127,24 @@ def test_saved_settings_load_and_old_files_still_read(grasps, tmp_path):
         (tmp_path / "bad.json").write_text(json.dumps({**saved, "settings": {**saved["settings"], **damage}}))
         with pytest.raises(InputError, match="damaged grasp learner"):
             GraspLearner.load(tmp_path / "bad.json")
+
+
+def test_the_estimator_face_keeps_its_parameters_and_clones():
+    """get_params gives the constructor's parameters as given, set_params changes them (or single settings)
+    validated as the constructor does, and ``sklearn.base.clone`` makes an unfitted learner with the same."""
+    base = pytest.importorskip("sklearn.base")
+    settings, device = GraspSettings.thesis(max_k=2), torch.device("cpu")
+    learner = GraspLearner(settings, seed=5, device=device)
+    assert learner.get_params() == {"settings": settings, "seed": 5, "device": device}
+    assert learner.get_params()["settings"] is settings and learner.device is device
+    twin = base.clone(learner)
+    assert twin is not learner and twin.get_params() == learner.get_params() and twin.sets[2].features == []
+    assert learner.set_params(max_k=3, seed=6) is learner
+    assert (learner.settings, learner.seed) == (settings.replace(max_k=3), 6)
+    assert learner.set_params(settings=GraspSettings()).settings == GraspSettings()
+    with pytest.raises(InputError, match="unknown grasp learner options"):
+        learner.set_params(pool=3)
+    with pytest.raises(InputError, match="seed must be"):
+        learner.set_params(seed=-1)
+    with pytest.raises(InputError, match="settings must be GraspSettings"):
+        GraspLearner({"max_k": 2})

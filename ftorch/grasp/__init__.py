@@ -1,6 +1,7 @@
 """Learning to pre-shape a grasp (chapter 6): von Mises orientation models (eq. 6.1-6.5) and the
 grasp learner that recommends finger count and hand orientation (alg. 6.1, 6.2)."""
-from .learner import Experience, GraspLearner, Learned, Recommendation
+from .feature_set import Experience
+from .learner import GraspLearner, Learned, Recommendation
 from .settings import MU0_CAP, POOR_MU0, FingerChoice, GraspSettings
 from .vonmises import VonMisesMixture, fit_mixture, fit_mixtures
 

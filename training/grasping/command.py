@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from dataclasses import fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,7 @@ from training.recognition.report import write_json
 from .experiment import EXPERIMENTS, GraspFold, simulate_pool
 from .figures import error_figure, grasp_figure, reduction_figure
 from .haptics import HapticController
+from .records import FoldEntry, FoldTests, GraspReport, Mode, RunConfig, SeedJob
 from .report import grasp_columns, reduction_words, results, seed_study, write_markdown
 
 FOLD_KIND = "grasp-fold"
@@ -70,17 +71,23 @@ def learner_settings(args) -> GraspSettings:
     return settings if settings.finger_choice is FingerChoice.QUALITY else settings.replace(mu0_split=None)
 
 
+def run_config(args) -> RunConfig:
+    """The settings a run records, from the command line (``device`` as asked: each seed's job resolves it)."""
+    return RunConfig(args.experiment, args.seed, args.pool, args.best, args.epochs, args.size, args.t_dtheta, args.folds,
+                     args.online, args.finger_choice, learner_settings(args).mu0_split, args.device)
+
+
 def _quality(split: np.ndarray) -> dict | None:
     """A feature's quality split for the report (ftorch/grasp/learner.py), None where it has none."""
     power, cut, above, below = (float(v) for v in split)
     return {"ksd": power, "cut": cut, "mu0_above": above, "mu0_below": below} if power > 0 else None
 
 
-def config(args, device) -> dict:
-    return {"experiment": args.experiment, "seed": args.seed, "pool": args.pool, "best": args.best, "epochs": args.epochs,
-            "size": args.size, "t_dtheta_deg": args.t_dtheta, "folds": args.folds, "online": args.online,
-            "finger_choice": args.finger_choice, "mu0_split": learner_settings(args).mu0_split,
-            "device": str(device)}
+def _learned_features(learner: GraspLearner) -> dict:
+    """Every learned feature with its model and quality split, by finger count (JSON-ready, for the report)."""
+    return {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None, quality=_quality(q))
+                     for f, m, q in zip(s.features, s.models, s.quality.T)]
+            for c, s in learner.sets.items()}
 
 
 def _histogram(writer, tag: str, values: list, step: int) -> None:
@@ -96,21 +103,22 @@ def log_epochs(writer, fold: GraspFold) -> None:
     prediction, the fingers it would choose; the grasps without a prediction (without a finger choice,
     without equilibrium) counted."""
     for entry, predicted in zip(fold.epochs, fold.predictions):
-        step = entry["epoch"] + 1
-        for tag in ("mistakes", "poor", "features_2", "features_3", "sampled_2", "sampled_3"):
-            writer.add_scalar(f"epoch/{tag}", entry[tag], step)
-        judged = [e is not None for e in predicted["error_deg"]]
-        measured = [m for m, j in zip(predicted["measured_mu0"], judged) if j]
+        step = entry.epoch + 1
+        for tag, value in (("mistakes", entry.mistakes), ("poor", entry.poor), ("features_2", entry.features_2),
+                           ("features_3", entry.features_3), ("sampled_2", entry.sampled_2), ("sampled_3", entry.sampled_3)):
+            writer.add_scalar(f"epoch/{tag}", value, step)
+        judged = [e is not None for e in predicted.error_deg]
+        measured = [m for m, j in zip(predicted.measured_mu0, judged) if j]
         writer.add_scalar("epoch/unpredicted", judged.count(False), step)
-        writer.add_scalar("epoch/no_finger_choice", predicted["fingers"].count(None), step)
+        writer.add_scalar("epoch/no_finger_choice", predicted.fingers.count(None), step)
         writer.add_scalar("epoch/no_equilibrium", measured.count(None), step)
-        _histogram(writer, "epoch/orientation_error_deg", predicted["error_deg"], step)
-        _histogram(writer, "epoch/mu0_expected", predicted["expected_mu0"], step)
+        _histogram(writer, "epoch/orientation_error_deg", predicted.error_deg, step)
+        _histogram(writer, "epoch/mu0_expected", predicted.expected_mu0, step)
         _histogram(writer, "epoch/mu0_measured", measured, step)
-        _histogram(writer, "epoch/fingers_chosen", predicted["fingers"], step)
+        _histogram(writer, "epoch/fingers_chosen", predicted.fingers, step)
 
 
-def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures: dict) -> None:
+def log_fold(writer, settings: dict, fold: GraspFold, evaluation: FoldTests, pictures: dict) -> None:
     """The epochs (:func:`log_epochs`), then the fold's tests (step: the epochs trained): histograms of
     the orientation errors, probes and mu_0 (capped at MU0_CAP) that exist, the grasps without a
     prediction or without equilibrium counted, the report's summaries, hyper-parameters and figures
@@ -118,22 +126,25 @@ def log_fold(writer, settings: dict, fold: GraspFold, evaluation: dict, pictures
     log_epochs(writer, fold)
     step = len(fold.epochs)
     res = results([evaluation])
-    errors = evaluation["orientation_errors_deg"]
+    errors = evaluation.orientation_errors_deg
     _histogram(writer, "fold/orientation_error_deg", errors, step)
     writer.add_scalar("fold/unpredicted", errors.count(None), step)
-    for side in ("haptic", "cued"):
-        mu0 = [g["mu0"] for g in evaluation[side]]
-        writer.add_histogram(f"fold/probes_{side}", np.array([g["probes"] for g in evaluation[side]]), step)
-        _histogram(writer, f"fold/mu0_{side}", [None if m is None else min(m, MU0_CAP) for m in mu0], step)
-        writer.add_scalar(f"fold/no_equilibrium_{side}", mu0.count(None), step)
-        writer.add_scalar(f"fold/probes_{side}_mean", res["probes"][side]["mean"], step)
-        writer.add_scalar(f"fold/mu0_{side}_median", res["mu0"][side]["median"], step)
-        writer.add_scalar(f"fold/poor_{side}", res["poor_grasp_fraction"][side], step)
-    writer.add_scalar("fold/orientation_error_median_deg", res["orientation_error_deg"]["median"], step)
-    writer.add_scalar("fold/orientation_error_p90_deg", res["orientation_error_deg"]["p90"], step)
+    poor = res.poor_grasp_fraction
+    for side, grasps, mu0, probes, poor_share in (("haptic", evaluation.haptic, res.mu0.haptic, res.probes.haptic, poor.haptic),
+                                                  ("cued", evaluation.cued, res.mu0.cued, res.probes.cued, poor.cued)):
+        measured = [g.mu0 for g in grasps]
+        writer.add_histogram(f"fold/probes_{side}", np.array([g.probes for g in grasps]), step)
+        _histogram(writer, f"fold/mu0_{side}", [None if m is None else min(m, MU0_CAP) for m in measured], step)
+        writer.add_scalar(f"fold/no_equilibrium_{side}", measured.count(None), step)
+        writer.add_scalar(f"fold/probes_{side}_mean", probes.mean, step)
+        writer.add_scalar(f"fold/mu0_{side}_median", mu0.median, step)
+        writer.add_scalar(f"fold/poor_{side}", poor_share, step)
+    error = res.orientation_error_deg
+    writer.add_scalar("fold/orientation_error_median_deg", error.median, step)
+    writer.add_scalar("fold/orientation_error_p90_deg", error.p90, step)
     hparams = {k: v for k, v in settings.items() if isinstance(v, (int, float, str, bool))}
-    metrics = {"hparam/orientation_error_median_deg": res["orientation_error_deg"]["median"],
-               "hparam/poor_haptic": res["poor_grasp_fraction"]["haptic"], "hparam/poor_cued": res["poor_grasp_fraction"]["cued"]}
+    metrics = {"hparam/orientation_error_median_deg": error.median, "hparam/poor_haptic": poor.haptic,
+               "hparam/poor_cued": poor.cued}
     writer.add_hparams(hparams, metrics, run_name=".", global_step=step)
     for name, picture in pictures.items():
         if isinstance(picture, np.ndarray):
@@ -160,7 +171,17 @@ def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np
     return titled(grid(panels, per_kind), f"{heading}: the feature behind each recommendation (figures 6.15, 6.16)")
 
 
-def _stored(path: Path, config: dict, fold: int) -> dict | None:
+@dataclass(frozen=True)
+class StoredFold:
+    """A fold's checkpoint as resuming reads it: whether the fold had ended, its state after the last
+    epoch (:meth:`GraspFold.state_dict`) and, where it had ended, its report entry."""
+
+    done: bool
+    state: dict
+    entry: FoldEntry | None
+
+
+def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
     """The checkpoint of a fold to resume (None where there is none); InputError for a damaged or foreign
     file, or one written under other settings."""
     if not path.is_file():
@@ -168,96 +189,103 @@ def _stored(path: Path, config: dict, fold: int) -> dict | None:
     data = load_checkpoint(path, FOLD_KIND)
     if data.get("config") != config or data.get("fold") != fold:
         raise InputError(f"{path}: written by a different run configuration; use another --out or delete it to start afresh")
-    if not isinstance(data.get("done"), bool) or not isinstance(data.get("state"), dict) or \
-            (data["done"] and not isinstance(data.get("entry"), dict)):
+    done, state, entry = data.get("done"), data.get("state"), data.get("entry")
+    if not isinstance(done, bool) or not isinstance(state, dict) or (done and not isinstance(entry, dict)):
         raise InputError(f"{path}: damaged grasp fold checkpoint (no state, or an ended fold without its report entry)")
-    return data
+    try:
+        return StoredFold(done, state, FoldEntry.from_dict(entry) if done else None)
+    except DAMAGED as err:
+        raise InputError(f"{path}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
 
 
-def _save(path: Path, config: dict, fold: GraspFold, entry: dict | None = None) -> None:
+def _save(path: Path, config: dict, fold: GraspFold, entry: FoldEntry | None = None) -> None:
     """A fold's checkpoint: its state after the last epoch, and once it has ended (``entry``), its report entry."""
     save_checkpoint(path, FOLD_KIND, {"config": config, "fold": fold.k, "done": entry is not None,
-                                      "state": fold.state_dict(), "entry": entry})
+                                      "state": fold.state_dict(), "entry": None if entry is None else entry.to_dict()})
 
 
-def seed_task(job: dict) -> dict:
-    """One seed of the experiment: every fold, off-line (and on-line), into ``job['out']`` (report,
-    figures, each fold's checkpoint in foldK/) and TensorBoard ``job['logdir']``/foldK; returns its
-    report. With ``resume``, each fold goes on from its checkpoint (module doc). Picklable, for local
-    processes and Ray (training/cli/parallel.py)."""
+def _fold_name(k: int, mode: Mode) -> str:
+    return f"fold{k}" + ("-online" if mode is Mode.ONLINE else "")
+
+
+def _run_fold(job: SeedJob, config: RunConfig, k: int, mode: Mode, pool: dict, space: FeatureSpace,
+              controller: HapticController) -> FoldEntry:
+    """Fold ``k`` in ``mode``: its stored entry where its checkpoint says it ended; else trained (on from its
+    checkpoint with ``resume``), tested, logged to TensorBoard, drawn, and its checkpoint saved."""
     from torch.utils.tensorboard import SummaryWriter
 
-    args, seed, ledger = argparse.Namespace(**job["args"]), job["seed"], job["ledger"]
-    out, logdir = Path(job["out"]), Path(job["logdir"])
+    out, logdir, name = Path(job.out), Path(job.logdir), _fold_name(k, mode)
+    checkpoint, fold_config = out / name / "checkpoint.json", config.fold_config(mode)
+    stored = _stored(checkpoint, fold_config, k) if job.resume else None
+    if stored is not None and stored.entry is not None:
+        return stored.entry
+    share_idle_cores()  # the last seeds of a --workers run take the idle cores
+    fold = GraspFold(k, config.experiment, pool, config.best, space, config.new_learner(k), controller, config.seed,
+                     not job.quiet)
+    if stored is not None:
+        try:
+            fold.load_state_dict(stored.state)
+        except DAMAGED as err:
+            raise InputError(f"{checkpoint}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
+        for events in (logdir / name).glob(f"{EVENTS}*"):  # what an interrupted log may have left
+            events.unlink()
+    job.ledger.files(checkpoint)
+    fold.fit(config.epochs, online=mode is Mode.ONLINE, after_epoch=lambda: _save(checkpoint, fold_config, fold))
+    evaluation = fold.evaluate()
+    which = f"{config.experiment}, seed {config.seed}, {name}"
+    features = recommended_features(fold, which)
+    pictures = {"errors": error_figure(evaluation.orientation_errors_deg, f"{which}: orientation errors"),
+                "grasps": grasp_figure(grasp_columns([evaluation], config.experiment), f"{which}: probes and mu_0"),
+                "features": features}
+    job.ledger.events(logdir / name)
+    with SummaryWriter(str(logdir / name)) as writer:
+        log_fold(writer, fold_config, fold, evaluation, pictures)
+    job.ledger.files(out / f"{name}_features.png")
+    save_rgb(out / f"{name}_features.png", features)
+    entry = FoldEntry(k, mode, fold.epochs, results([evaluation]), evaluation, _learned_features(fold.learner))
+    _save(checkpoint, fold_config, fold, entry)
+    return entry
+
+
+def seed_task(job: SeedJob) -> GraspReport:
+    """One seed of the experiment: every fold, off-line (and on-line), into ``job.out`` (report, figures,
+    each fold's checkpoint in foldK/) and TensorBoard ``job.logdir``/foldK; returns its report. With
+    ``resume``, each fold goes on from its checkpoint (module doc). Picklable, for local processes and
+    Ray (training/cli/parallel.py)."""
+    out = Path(job.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    device = resolve_device(args.device)
-    torch.manual_seed(seed)
-    settings = {**config(args, device), "seed": seed}
+    device = resolve_device(job.config.device)
+    config = replace(job.config, device=str(device))  # resolved where the job runs (a Ray task's machine)
+    torch.manual_seed(config.seed)
     controller = HapticController()
     space = FeatureSpace().to(device)
-    pool = simulate_pool(args.experiment, args.pool, seed, args.size, controller, not args.quiet)
-    modes = ("offline", "online") if args.online else ("offline",)
-    evaluations = {mode: [] for mode in modes}
+    pool = simulate_pool(config.experiment, config.pool, config.seed, config.size, controller, not job.quiet)
+    evaluations: dict[Mode, list[FoldTests]] = {mode: [] for mode in config.modes()}
     folds, figures = [], []
-    for k in range(1, args.folds + 1):
-        for mode in modes:
-            name = f"fold{k}" + ("-online" if mode == "online" else "")
-            checkpoint, fold_config = out / name / "checkpoint.json", {**settings, "mode": mode}
-            stored = _stored(checkpoint, fold_config, k) if args.resume else None
-            if stored is None or not stored["done"]:
-                share_idle_cores()  # the last seeds of a --workers run take the idle cores
-                learner = GraspLearner(learner_settings(args), seed=seed * 100 + k, device=device)
-                fold = GraspFold(k, args.experiment, pool, args.best, space, learner, controller, seed, not args.quiet)
-                if stored is not None:
-                    try:
-                        fold.load_state_dict(stored["state"])
-                    except DAMAGED as err:
-                        raise InputError(f"{checkpoint}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
-                    for events in (logdir / name).glob(f"{EVENTS}*"):  # what an interrupted log may have left
-                        events.unlink()
-                ledger.files(checkpoint)
-                fold.fit(args.epochs, online=mode == "online", after_epoch=lambda: _save(checkpoint, fold_config, fold))
-                evaluation = fold.evaluate()
-                which = f"{args.experiment}, seed {seed}, {name}"
-                pictures = {"errors": error_figure(evaluation["orientation_errors_deg"], f"{which}: orientation errors"),
-                            "grasps": grasp_figure(grasp_columns([evaluation], args.experiment), f"{which}: probes and mu_0"),
-                            "features": recommended_features(fold, which)}
-                ledger.events(logdir / name)
-                with SummaryWriter(str(logdir / name)) as writer:
-                    log_fold(writer, fold_config, fold, evaluation, pictures)
-                ledger.files(out / f"{name}_features.png")
-                save_rgb(out / f"{name}_features.png", pictures["features"])
-                entry = {"fold": k, "mode": mode, "epochs": fold.epochs, **results([evaluation]), "tests": evaluation,
-                         "features": {str(c): [dict(feature=f.to_dict(), model=m.to_dict() if m else None, quality=_quality(q))
-                                               for f, m, q in zip(s.features, s.models, s.quality.T)]
-                                      for c, s in learner.sets.items()}}
-                _save(checkpoint, fold_config, fold, entry)
-            else:
-                entry = stored["entry"]
-            evaluations[mode].append(entry["tests"])
+    for k in range(1, config.folds + 1):
+        for mode in config.modes():
+            entry = _run_fold(job, config, k, mode, pool, space, controller)
+            evaluations[mode].append(entry.tests)
             folds.append(entry)
-            figures.append(f"{name}_features.png")
-            last = entry["epochs"][-1]
-            if not args.quiet:
-                print(f"seed {seed} fold {k} {mode}: {len(entry['epochs'])} epochs, last with {last['mistakes']:.2f} "
-                      f"mistakes; {last['features_2']} + {last['features_3']} features")
-    offline = evaluations["offline"]
-    ledger.files(*(out / name for name in ("errors.png", "grasps.png", "report.json", "report.md")))
-    save_rgb(out / "errors.png", figure_rgb(error_figure([e for ev in offline for e in ev["orientation_errors_deg"]],
-                                                         f"{args.experiment}, seed {seed}: orientation errors (figure 6.13)")))
-    save_rgb(out / "grasps.png", figure_rgb(grasp_figure(grasp_columns(offline, args.experiment),
-                                                         f"{args.experiment}, seed {seed}: probes and mu_0, haptic only vs "
-                                                         "cued (figures 6.14, 6.17)")))
-    figures = ["errors.png", "grasps.png", *figures]
-    report = {"config": settings, "device": str(device), "machine": machine(device),
-              "seconds": time.perf_counter() - start, **results(offline)}
-    if args.online:
-        report["online"] = {mode: results(evaluations[mode]) for mode in modes}
-    report["folds"] = folds
-    report["figures"] = figures
-    write_json(out / "report.json", report)
-    write_markdown(out / "report.md", report, figures)
+            figures.append(f"{_fold_name(k, mode)}_features.png")
+            last = entry.epochs[-1]
+            if not job.quiet:
+                print(f"seed {config.seed} fold {k} {mode}: {len(entry.epochs)} epochs, last with {last.mistakes:.2f} "
+                      f"mistakes; {last.features_2} + {last.features_3} features")
+    offline = evaluations[Mode.OFFLINE]
+    job.ledger.files(*(out / name for name in ("errors.png", "grasps.png", "report.json", "report.md")))
+    save_rgb(out / "errors.png", figure_rgb(error_figure([e for ev in offline for e in ev.orientation_errors_deg],
+                                                         f"{config.experiment}, seed {config.seed}: orientation errors "
+                                                         "(figure 6.13)")))
+    save_rgb(out / "grasps.png", figure_rgb(grasp_figure(grasp_columns(offline, config.experiment),
+                                                         f"{config.experiment}, seed {config.seed}: probes and mu_0, "
+                                                         "haptic only vs cued (figures 6.14, 6.17)")))
+    report = GraspReport(config, str(device), machine(device), time.perf_counter() - start, results(offline),
+                         {mode: results(evaluations[mode]) for mode in config.modes()} if config.online else None,
+                         folds, ["errors.png", "grasps.png", *figures])
+    write_json(out / "report.json", report.to_dict())
+    write_markdown(out / "report.md", report)
     return report
 
 
@@ -278,41 +306,41 @@ def grasp_command(args) -> int:
 def _grasp(args, folder: RunFolder, start: float) -> int:
     """The body of :func:`grasp_command` once the run folder is held."""
     out, logdir = folder.out, folder.logdir
-    parallel = args.workers > 1 or args.ray is not None
-    settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
-    settings["quiet"] = args.quiet or parallel  # one progress bar over the seeds instead
-    seeds = range(args.seed, args.seed + args.seeds)
-    jobs = [{"args": settings, "seed": s, "out": str(o), "logdir": str(t), "ledger": folder.ledger}
+    quiet = args.quiet or args.workers > 1 or args.ray is not None  # one progress bar over the seeds instead
+    config, seeds = run_config(args), range(args.seed, args.seed + args.seeds)
+    jobs = [SeedJob(replace(config, seed=s), str(o), str(t), folder.ledger, quiet, args.resume)
             for s, o, t in run_folders(args, out, logdir)]
     reports = run_jobs(seed_task, jobs, [f"seed {s}" for s in seeds], args, out, "seeds")
     report = reports[0]
     if args.seeds > 1:
-        report["seeds"] = seed_study(reports)
-        report["seconds"] = time.perf_counter() - start
+        study = seed_study(reports)
         folder.ledger.files(out / "reductions.png")
-        save_rgb(out / "reductions.png", figure_rgb(reduction_figure(report["seeds"],
-                                                                     f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}")))
-        report["figures"] = [*report["figures"], "reductions.png"]
-        write_json(out / "report.json", report)
-        write_markdown(out / "report.md", report, report["figures"])
-    e, p = report["orientation_error_deg"], report["poor_grasp_fraction"]
-    print(f"{args.experiment}, seed {args.seed}: orientation error median {e['median']:.1f} deg (p90 {e['p90']:.1f}); "
-          f"poor grasps haptic {p['haptic']:.2f} -> cued {p['cued']:.2f}; probes {report['probes']['haptic']['mean']:.1f} "
-          f"-> {report['probes']['cued']['mean']:.1f}")
-    if args.online:
-        on = report["online"]["online"]
-        print(f"on-line: orientation error median {on['orientation_error_deg']['median']:.1f} deg; poor grasps cued "
-              f"{on['poor_grasp_fraction']['cued']:.2f}")
-    if args.seeds > 1:
-        for mode, study in report["seeds"]["reduction"].items():
-            cued, error = report["seeds"]["poor_cued"][mode], report["seeds"]["error_median_deg"][mode]
-            print(f"{args.seeds} seeds, {mode}: {reduction_words(study, ' +- ')}; poor cued mean {cued['mean']:.2f}; "
-                  f"median orientation error worst {error['worst']:.1f} deg (seed {error['worst_seed']})")
-    print(f"{time.perf_counter() - start:.1f} s; report: {out / 'report.md'} and {out / 'report.json'}; "
-          f"TensorBoard: tensorboard --logdir {logdir}")
+        save_rgb(out / "reductions.png", figure_rgb(reduction_figure(study, f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}")))
+        report = replace(report, seconds=time.perf_counter() - start, figures=[*report.figures, "reductions.png"], seeds=study)
+        write_json(out / "report.json", report.to_dict())
+        write_markdown(out / "report.md", report)
+    _summarize(args, report, start, out, logdir)
     return 0
 
 
+def _summarize(args, report: GraspReport, start: float, out: Path, logdir: Path) -> None:
+    """The run's last lines: its results (on-line, and over the seeds, where run), time and where it went."""
+    res = report.results
+    e, p, probes = res.orientation_error_deg, res.poor_grasp_fraction, res.probes
+    print(f"{args.experiment}, seed {args.seed}: orientation error median {e.median:.1f} deg (p90 {e.p90:.1f}); "
+          f"poor grasps haptic {p.haptic:.2f} -> cued {p.cued:.2f}; probes {probes.haptic.mean:.1f} -> {probes.cued.mean:.1f}")
+    if report.online is not None:
+        on = report.online[Mode.ONLINE]
+        print(f"on-line: orientation error median {on.orientation_error_deg.median:.1f} deg; poor grasps cued "
+              f"{on.poor_grasp_fraction.cued:.2f}")
+    if report.seeds is not None:
+        study = report.seeds
+        for mode, spread in study.reduction.items():
+            cued, error = study.poor_cued[mode], study.error_median_deg[mode]
+            print(f"{args.seeds} seeds, {mode}: {reduction_words(spread, ' +- ')}; poor cued mean {cued.mean:.2f}; "
+                  f"median orientation error worst {error.worst:.1f} deg (seed {error.worst_seed})")
+    print(f"{time.perf_counter() - start:.1f} s; report: {out / 'report.md'} and {out / 'report.json'}; "
+          f"TensorBoard: tensorboard --logdir {logdir}")
 def _learner_options(p: argparse.ArgumentParser) -> None:
     """``OPTIONS`` as :class:`GraspSettings` describes them, with its defaults (the measured best);
     ``--t-dtheta`` in degrees."""

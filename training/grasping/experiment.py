@@ -36,6 +36,7 @@ instance lists' values are stored exactly (ftorch.checkpoint), and every other r
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,13 +45,17 @@ from tqdm import tqdm
 
 from ftorch import FeatureSpace
 from ftorch.checkpoint import decode_array, encode_array
-from ftorch.grasp.learner import GENERATOR_STATE, Experience, GraspLearner, angular_error
+from ftorch.grasp.feature_set import Experience
+from ftorch.grasp.learner import GraspLearner, Learned
+from ftorch.grasp.models import angular_error
 from ftorch.grasp.settings import MU0_CAP, POOR_MU0
+from ftorch.grasp.state import GENERATOR_STATE
 from ftorch.space.record import ImageRecords
 
 from .camera import render
 from .haptics import GraspOutcome, HapticController, symmetry_period
 from .objects import KINDS, GraspObject, random_object
+from .records import Epoch, FoldState, FoldTests, Grasp, Predictions
 
 EXPERIMENTS = ("clean", "noisy", "cue", "mixed")
 ALL_CATEGORIES = (("square", 2), ("triangle", 3), ("square", 3), ("triangle", 2))
@@ -127,8 +132,8 @@ class GraspFold:
             self.batch = space.records([torch.from_numpy(t.image) for t in trials], progress=self.progress)
         self.position = {t.key: i for i, t in enumerate(trials)}
         self.records: dict[tuple, ImageRecords] = {t.key: self.batch[i] for i, t in enumerate(trials)}
-        self.epochs: list[dict] = []
-        self.predictions: list[dict] = []
+        self.epochs: list[Epoch] = []
+        self.predictions: list[Predictions] = []
         self.order = torch.Generator().manual_seed(seed * 1000 + k)  # the presentation order of each epoch
 
     def _fingers(self, trial: Trial) -> int | None:
@@ -150,7 +155,7 @@ class GraspFold:
 
     def finished(self, epochs: int, online: bool = False) -> bool:
         """Whether training is over: ``epochs`` passes made, or (off-line) the last made no mistake."""
-        return len(self.epochs) >= epochs or (not online and bool(self.epochs) and self.epochs[-1]["mistakes"] == 0)
+        return len(self.epochs) >= epochs or (not online and bool(self.epochs) and self.epochs[-1].mistakes == 0)
 
     def fit(self, epochs: int, online: bool = False, after_epoch=None) -> None:
         """Alg. 6.2 over the training grasps for up to ``epochs`` passes (off-line: the recorded grasps;
@@ -160,8 +165,8 @@ class GraspFold:
                    unit="epoch", disable=not self.progress)
         while not self.finished(epochs, online):
             epoch = len(self.epochs)
-            counts = {"correct": 0, "refit": 0, "sampled": 0}
-            mu0, predicted = [], {"error_deg": [], "expected_mu0": [], "measured_mu0": [], "fingers": []}
+            counts: Counter[Learned] = Counter()
+            mu0, predicted = [], Predictions()
             for i in torch.randperm(len(self.train), generator=self.order).tolist():
                 trial = self.train[i]
                 if online:
@@ -175,17 +180,18 @@ class GraspFold:
                 counts[self.learner.learn(image, self.records[trial.key], experience)] += 1
                 mu0.append(outcome.mu0)
             self.predictions.append(predicted)
-            self.epochs.append({"epoch": epoch, **counts, "mistakes": (counts["refit"] + counts["sampled"]) / len(self.train),
-                                "poor": float(np.mean(np.array(mu0) > POOR_MU0)),
-                                **{f"features_{c}": len(s) for c, s in self.learner.sets.items()},
-                                **{f"sampled_{c}": s.sampled for c, s in self.learner.sets.items()}})
+            two, three = self.learner.sets[2], self.learner.sets[3]
+            mistakes = counts[Learned.REFIT] + counts[Learned.SAMPLED]
+            self.epochs.append(Epoch(epoch, counts[Learned.CORRECT], counts[Learned.REFIT], counts[Learned.SAMPLED],
+                                     mistakes / len(self.train), float(np.mean(np.array(mu0) > POOR_MU0)),
+                                     len(two), len(three), two.sampled, three.sampled))
             bar.update(1)
-            bar.set_postfix(mistakes=f"{self.epochs[-1]['mistakes']:.2f}")
+            bar.set_postfix(mistakes=f"{self.epochs[-1].mistakes:.2f}")
             if after_epoch is not None:
                 after_epoch()
         bar.close()
 
-    def _predicted(self, predicted: dict, trial: Trial, experience: Experience) -> None:
+    def _predicted(self, predicted: Predictions, trial: Trial, experience: Experience) -> None:
         """What the learner predicts for a training grasp before learning its outcome (recommending is
         pure): the orientation error and E[mu_0] with the fingers grasped with, the measured mu_0 (None:
         no equilibrium; else capped at MU0_CAP, as the instance list holds it), and the fingers it would
@@ -194,31 +200,30 @@ class GraspFold:
         cue = self.learner.recommend(self.records[trial.key], experience.fingers)
         chosen = cue if self._fingers(trial) == experience.fingers else self.recommendation(trial)
         error = angular_error(cue.theta_h, experience.theta_H, experience.period) if cue is not None else None
-        predicted["error_deg"].append(None if cue is None else math.degrees(float(error)))
-        predicted["expected_mu0"].append(None if cue is None else cue.expected_mu0)
-        predicted["measured_mu0"].append(min(experience.mu0, MU0_CAP) if math.isfinite(experience.mu0) else None)
-        predicted["fingers"].append(None if chosen is None else chosen.fingers)
+        predicted.error_deg.append(None if cue is None else math.degrees(float(error)))
+        predicted.expected_mu0.append(None if cue is None else cue.expected_mu0)
+        predicted.measured_mu0.append(min(experience.mu0, MU0_CAP) if math.isfinite(experience.mu0) else None)
+        predicted.fingers.append(None if chosen is None else chosen.fingers)
 
     def state_dict(self) -> dict:
         """JSON-ready: what training goes on from (module doc): the epoch log and predictions, the
         presentation order's generator and the learner's training state."""
-        return {"epochs": self.epochs, "predictions": self.predictions,
-                "order": encode_array(self.order.get_state().numpy().astype(np.float64)),
-                "learner": self.learner.state_dict()}
+        return FoldState(self.epochs, self.predictions, encode_array(self.order.get_state().numpy().astype(np.float64)),
+                         self.learner.state_dict()).to_dict()
 
     def load_state_dict(self, state: dict) -> None:
         """Restore :meth:`state_dict` into this fold, built as the saved one was; ValueError (or another
         of ``ftorch.checkpoint.DAMAGED``) for a damaged state."""
-        epochs, predictions = state["epochs"], state["predictions"]
-        if not isinstance(epochs, list) or not isinstance(predictions, list) or len(epochs) != len(predictions):
+        stored = FoldState.from_dict(state)
+        if len(stored.epochs) != len(stored.predictions):
             raise ValueError("the epoch log and the predictions must be lists of one entry per epoch")
-        if [e["epoch"] for e in epochs] != list(range(len(epochs))):
+        if [e.epoch for e in stored.epochs] != list(range(len(stored.epochs))):
             raise ValueError("the epoch log must number its epochs 0, 1, ...")
-        self.learner.load_state_dict(state["learner"], lambda name: self.records[tuple(name[:3])])
-        self.order.set_state(torch.from_numpy(decode_array(state["order"], shape=GENERATOR_STATE).astype(np.uint8)))
-        self.epochs, self.predictions = epochs, predictions
+        self.learner.load_state_dict(stored.learner, lambda name: self.records[tuple(name[:3])])
+        self.order.set_state(torch.from_numpy(decode_array(stored.order, shape=GENERATOR_STATE).astype(np.uint8)))
+        self.epochs, self.predictions = stored.epochs, stored.predictions
 
-    def evaluate(self) -> dict:
+    def evaluate(self) -> FoldTests:
         """Orientation errors on the test grasps and haptic-only vs cued grasps of the held-out objects,
         recommended for all of them at once (the test grasps are among them: each image is measured once)."""
         held = self.batch[torch.tensor([self.position[t.key] for t in self.objects])]
@@ -230,13 +235,9 @@ class GraspFold:
         for trial, cue in zip(self.objects, chosen):
             fingers = cue.fingers if cue is not None else trial.fingers
             outcome = regrasp(trial, fingers, cue.theta_h if cue else None, self.seed, 0, self.controller)
-            haptic.append(_grasp_row(trial, trial.outcome))
-            cued.append({**_grasp_row(trial, outcome), "recommended": cue is not None})
-        return {"orientation_errors_deg": [errors[t.key] for t in self.test], "haptic": haptic, "cued": cued}
-
-
-def _grasp_row(trial: Trial, outcome: GraspOutcome) -> dict:
-    return {"object": trial.kind, "index": trial.index, **outcome.to_dict()}
+            haptic.append(Grasp(trial.kind, trial.index, **trial.outcome.to_dict()))
+            cued.append(Grasp(trial.kind, trial.index, **outcome.to_dict(), recommended=cue is not None))
+        return FoldTests([errors[t.key] for t in self.test], haptic, cued)
 
 
 def simulate_pool(experiment: str, pool: int, seed: int, size: int, controller: HapticController,

@@ -9,6 +9,8 @@ from matplotlib.figure import Figure
 
 from training.plots import subplots
 
+from .records import Grasp, Mode, SeedStudy
+
 ERROR_BINS = np.arange(0, 65, 5.0)    # degrees; the last bin holds everything above 60 (figure 6.13)
 PROBE_BINS = np.arange(1, 21, 1.0)    # the last bin holds 20 probes or more (figure 6.14)
 MU0_BINS = np.arange(0, 1.05, 0.05)   # the last bin holds mu_0 >= 1
@@ -43,27 +45,27 @@ def error_figure(errors: list, title: str) -> Figure:
     return figure
 
 
-def grasp_figure(columns: dict[str, list[dict]], title: str) -> Figure:
+def grasp_figure(columns: dict[str, list[Grasp]], title: str) -> Figure:
     """Figures 6.14 and 6.17: per column of grasps, the probes (top) and mu_0 (bottom) histograms."""
     figure, axes = subplots(2, len(columns), figsize=(3.4 * len(columns), 5.2), squeeze=False)
     for n, (name, grasps) in enumerate(columns.items()):
         colour = f"C{n}"
-        _histogram(axes[0, n], [g["probes"] for g in grasps], PROBE_BINS, "probes until the grasp settles", name, colour)
-        _histogram(axes[1, n], [g["mu0"] for g in grasps], MU0_BINS, "mu_0 (lower is better; last bin: >= 1)", name, colour)
+        _histogram(axes[0, n], [g.probes for g in grasps], PROBE_BINS, "probes until the grasp settles", name, colour)
+        _histogram(axes[1, n], [g.mu0 for g in grasps], MU0_BINS, "mu_0 (lower is better; last bin: >= 1)", name, colour)
         axes[0, n].set_title(name, fontsize=9)
     figure.suptitle(title, fontsize=10)
     figure.tight_layout()
     return figure
 
 
-def reduction_figure(study: dict, title: str) -> Figure:
+def reduction_figure(study: SeedStudy, title: str) -> Figure:
     """Histogram of the per-seed poor-grasp reductions, off-line (and on-line), in percent; a seed
     without poor haptic grasps has no reduction: it is left out, and the legend says how many were."""
     figure, ax = subplots(figsize=(4.2, 2.8))
     bins = np.arange(-20, 105, 5.0)
-    for n, mode in enumerate(study["reduction"]):
-        key = (lambda e: e["poor_grasp_fraction"]) if mode == "offline" else (lambda e: e["online"]["poor_grasp_fraction"])
-        reductions = [key(e)["reduction"] for e in study["runs"]]
+    for n, mode in enumerate(study.reduction):
+        reductions = [(e.poor_grasp_fraction if mode is Mode.OFFLINE else e.online.poor_grasp_fraction).reduction
+                      for e in study.runs]
         values = [100 * r for r in reductions if r is not None]
         left = len(reductions) - len(values)
         note = f"; {left} left out: no poor haptic grasps" if left else ""
