@@ -335,6 +335,17 @@ class FeatureSpace(nn.Module):
                        for (height, width), dtype in keys)
         return sum(sizes[-PLANS:])
 
+    def _loaded(self, item, name: str | None, i: int, device: torch.device) -> torch.Tensor:
+        """Image ``i`` as a (1, H, W) tensor on ``device``; InputError naming it (``name``, else its file
+        path or images[i]) where it is no image or too small for the scale space."""
+        name = name if name is not None else str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
+        image = as_image(item, name)
+        try:
+            self.scale_space.num_levels(*image.shape)
+        except InputError as err:
+            raise InputError(f"{name}: {err}") from None
+        return image[None].to(device)
+
     def records(self, images: Sequence, batch_size: int = 16, progress: bool = False,
                 names: Sequence[str] | None = None) -> ImageRecords:
         """Records of images of any sizes, computed in batches of one size and joined in order.
@@ -358,15 +369,7 @@ class FeatureSpace(nn.Module):
         if len(images) == 0:
             raise InputError("images: the sequence is empty")
         device = next(iter(self.scale_space.buffers())).device
-        loaded = []
-        for i, item in enumerate(images):
-            name = names[i] if names is not None else str(item) if isinstance(item, (str, Path)) else f"images[{i}]"
-            image = as_image(item, name)
-            try:
-                self.scale_space.num_levels(*image.shape)
-            except InputError as err:
-                raise InputError(f"{name}: {err}") from None
-            loaded.append(image[None].to(device))
+        loaded = [self._loaded(item, names[i] if names is not None else None, i, device) for i, item in enumerate(images)]
         height, width, entries = self._pyramid_layout([image.shape[-2:] for image in loaded])
         require_memory(self.pyramid_nbytes(loaded), device, f"{len(loaded)} images of up to {height}x{width} pixels",
                        self.matrices_nbytes(loaded))
