@@ -111,9 +111,9 @@ class LearnerSettings(Settings):
     def __post_init__(self):
         for f in fields(self):
             if f.metadata["at_least"] is not None:
-                object.__setattr__(self, f.name, whole(f.name, getattr(self, f.name), f.metadata["at_least"]))
+                object.__setattr__(self, f.name, integer_in(f.name, getattr(self, f.name), f.metadata["at_least"]))
         for name in ("min_information", "test_information"):
-            object.__setattr__(self, name, bits(name, getattr(self, name)))
+            object.__setattr__(self, name, threshold_bits(name, getattr(self, name)))
         for name, low, high, closed in (("pseudocount", 0.0, math.inf, False), ("leak", 0.0, 0.5, False),
                                         ("cut_position", 0.0, 1.0, True)):
             value = _real(name, getattr(self, name))
@@ -149,7 +149,7 @@ class LearnerSettings(Settings):
         return out
 
 
-def whole(name: str, value, minimum: int, maximum: int | None = None) -> int:
+def integer_in(name: str, value, minimum: int, maximum: int | None = None) -> int:
     """An integer option from ``minimum`` (to ``maximum``); InputError for a float, a bool or a number out of range."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum or \
             (maximum is not None and value > maximum):
@@ -164,7 +164,7 @@ def _real(name: str, value) -> float:
     return float(value)
 
 
-def bits(name: str, value) -> float:
+def threshold_bits(name: str, value) -> float:
     """A stopping threshold of alg. 4.4 in bits: [0, 1); InputError otherwise."""
     value = _real(name, value)
     if not 0.0 <= value < 1.0:

@@ -37,7 +37,7 @@ from ..errors import InputError
 from .environment import ImageSet
 from .inference import Outcome, Result, outcome
 from .learning import Learning
-from .settings import whole
+from .settings import integer_in
 
 AUTO_LIMIT = 12  # stages of an "auto" schedule at most
 INCREMENTAL_LIMIT = 10  # expert stages per added class (alg. 5.4 step 2)
@@ -210,8 +210,8 @@ class Schedule:
                  max_cycles: int = MAX_CYCLES, classes: list | None = None, incremental: bool = False,
                  versions: int = 1, progress: Progress | None = None):
         self.learner, self.env, self.order = learner, env, order
-        self.stages = None if stages is None else whole("stages", stages, 0, STAGES_LIMIT)
-        self.max_cycles = whole("max_cycles", max_cycles, 1, CYCLES_LIMIT)
+        self.stages = None if stages is None else integer_in("stages", stages, 0, STAGES_LIMIT)
+        self.max_cycles = integer_in("max_cycles", max_cycles, 1, CYCLES_LIMIT)
         self.incremental, self.versions = incremental, versions
         self.classes = env.classes() if classes is None else taught_order(classes, env.classes())
         self.progress = Progress() if progress is None else progress

@@ -28,7 +28,7 @@ from .bayes import ClassNetwork
 from .counting import Counting
 from .environment import ImageSet
 from .instances import are_stored_values
-from .settings import LearnerSettings, whole
+from .settings import LearnerSettings, integer_in
 
 if TYPE_CHECKING:
     from .learning import Learning
@@ -172,7 +172,7 @@ def load_state_dict(learning: Learning, state: dict, features: list[Feature] | N
     state = migrated(state)
     features = unpack_features(state["features"]) if features is None else features
     at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
-    learning.seed = whole("seed", state["seed"], 0, MAX_SEED)
+    learning.seed = integer_in("seed", state["seed"], 0, MAX_SEED)
     missing = [k for k in LearnerSettings.names() if k not in state]
     if missing:
         raise ValueError(f"a state of schema {SCHEMA} without the option {missing[0]!r}")
