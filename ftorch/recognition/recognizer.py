@@ -20,7 +20,7 @@ from .value_cache import ValueCache
 
 # From this many images on, alg. 4.4 runs as one block (recognize_block), below it image by image
 # (recognize): a block's steps cost numpy calls per network, an image's steps Python on scalars
-# (docs/benchmark.md, "recognition: block against image by image").
+# (docs/benchmark.md, "Feature space and exact inference": a block pays from about 20 images on).
 BLOCK_MIN = 24
 
 
