@@ -233,7 +233,7 @@ class GraspFeatureSet:
         self._source_of_row.append(self._source_index[id(records)])
         self._values.add_rows(values[None, :])
         self._thetas.add_rows(thetas[None, :])
-        self._outcomes.add_rows([[experience.theta_H, min(experience.mu0, MU0_CAP), experience.period]])
+        self._outcomes.add_rows(np.array([[experience.theta_H, min(experience.mu0, MU0_CAP), experience.period]]))
 
     def add_features(self, features: list[Feature]) -> None:
         """New features, measured at once on every distinct image of the instance list."""

@@ -259,8 +259,9 @@ class GraspLearner:
                 continue  # no image asks for this set: it is not measured
             values, thetas = feature_set.measure(records)
             chosen, _, expected = feature_set.step_2b(values, thetas, self.settings.finger_choice)
-            for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)):
-                if best[i] is None or expected[i] < best[i].expected_mu0:
+            for i in np.flatnonzero((chosen >= 0) & np.array([f in (None, c) for f in fingers], dtype=bool)).tolist():
+                current = best[i]
+                if current is None or expected[i] < current.expected_mu0:
                     best[i] = self._cue(c, i, int(chosen[i]), thetas, expected)
         return best
 
@@ -287,6 +288,8 @@ class GraspLearner:
     def _cue(self, c: int, i: int, j: int, thetas: np.ndarray, expected: np.ndarray) -> Recommendation:
         """Steps 3-4 for image i of a batch (B, F) whose f*_c is feature j of set c."""
         model = self.sets[c].models[j]
+        if model is None:  # a bug: step 2b chooses among present features, and present() admits modelled ones only
+            raise RuntimeError(f"step 2b chose feature {j} of set {c}, which has no model")
         return Recommendation(c, float(thetas[i, j] + model.offset), self.sets[c].features[j], model.ksd, float(expected[i]))
 
     def learn(self, image: Hashable, records: ImageRecords, experience: Experience) -> Learned:

@@ -43,7 +43,11 @@ class FeatureModel:
         """JSON-ready; with ``rows``, the instance rows it was fitted on (which learning compares)."""
         out = {"ksd": self.ksd, "alpha": self.alpha, "mixture": self.mixture.to_dict(), "offset": self.offset,
                "expected_mu0": self.expected_mu0, "support": self.support}
-        return {**out, "rows": self.rows.tolist()} if rows else out
+        if not rows:
+            return out
+        if self.rows is None:
+            raise ValueError("this model was read without the instance rows it was fitted on: it cannot write them")
+        return {**out, "rows": self.rows.tolist()}
 
     @classmethod
     def from_dict(cls, data: dict, instances: int | None = None) -> "FeatureModel":
@@ -67,8 +71,8 @@ def fit_models(models: list[FeatureModel | None], values: np.ndarray, thetas: np
     located = np.isfinite(offsets)
     fresh = [j for j, m in enumerate(models) if m is None and located[:, j].sum() >= min_points]
     start = dict(zip(fresh, fit_mixtures([offsets[located[:, j], j] for j in fresh], max_k))) if fresh else {}
-    mixture = {j: start.get(j) or (m.mixture if m is not None else None) for j, m in enumerate(models)}
-    modelled = [j for j in range(len(models)) if mixture[j] is not None]
+    mixture = {j: m.mixture for j, m in enumerate(models) if m is not None} | start  # start: features without a model
+    modelled = sorted(mixture)
     if not modelled:
         return list(models)
     offset = np.array([float(mixture[j].mu[mixture[j].concentrated(min_points)]) for j in modelled])
@@ -86,7 +90,8 @@ def fit_models(models: list[FeatureModel | None], values: np.ndarray, thetas: np
     previous = {i: models[modelled[i]] for i in usable}
     # A model fitted to the same instances keeps its mixture: EM on the same points reaches the
     # same fit (each fit is independent of its batch, ftorch/grasp/vonmises.py), so only changed ones are fitted.
-    kept = {i: m.mixture for i, m in previous.items() if m is not None and np.array_equal(m.rows, rows[i])}
+    kept = {i: m.mixture for i, m in previous.items() if m is not None and m.rows is not None
+            and np.array_equal(m.rows, rows[i])}
     refit = [i for i in usable if i not in kept]
     fitted = {**kept, **dict(zip(refit, fit_mixtures([offsets[rows[i], modelled[i]] for i in refit], max_k)
                                       if refit else []))}

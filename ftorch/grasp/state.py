@@ -82,13 +82,13 @@ def _restore_instances(feature_set: GraspFeatureSet, state: dict, n: int, width:
     if len(state["born"]) != width or len(state["used"]) != width or \
             any(isinstance(v, bool) or not isinstance(v, int) or v < -1 for v in counts):
         raise ValueError("born, used, grasps and sampled must be integers, one born and used per feature")
-    tables = [decode_array(state[k], shape=shape) for k, shape in
-              (("values", (n, width)), ("thetas", (n, width)), ("outcomes", (n, 3)))]
+    values, thetas, outcomes = (decode_array(state[k], shape=shape) for k, shape in
+                                (("values", (n, width)), ("thetas", (n, width)), ("outcomes", (n, 3))))
     sources = [records(images[row]) for row in first]
     for row, found in zip(first, sources):
         if not isinstance(found, ImageRecords) or len(found) != 1:
             raise ValueError(f"no records of one image for {images[row]!r}")
-    feature_set.fill(images, *tables, sources, first, rows)
+    feature_set.fill(images, values, thetas, outcomes, sources, first, rows)
 
 
 @dataclass
@@ -107,8 +107,8 @@ def learner_state(settings: GraspSettings, sets: dict[int, GraspFeatureSet], see
     """JSON-ready: the settings and the sets (:func:`set_state`); with the ``seed`` and the ``generator``
     a training state, else a recommending one."""
     table, training = FeatureTable(), generator is not None
-    state = {"settings": settings.to_dict(), "sets": [set_state(s, table, training) for s in sets.values()],
-             "features": table.pack()}
+    state: dict[str, object] = {"settings": settings.to_dict(), "sets": [set_state(s, table, training) for s in sets.values()],
+                                "features": table.pack()}
     if generator is not None:
         state.update({"seed": seed, "generator": encode_array(generator.get_state().numpy().astype(np.float64))})
     return state

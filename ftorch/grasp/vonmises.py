@@ -93,13 +93,13 @@ class VonMisesMixture:
     @classmethod
     def from_dict(cls, data: dict) -> "VonMisesMixture":
         try:
-            tensors = [torch.tensor([float(v) for v in data[k]], dtype=torch.float64) for k in ("mu", "kappa", "weight")]
+            mu, kappa, weight = (torch.tensor([float(v) for v in data[k]], dtype=torch.float64) for k in ("mu", "kappa", "weight"))
             n, ll, icl = int(data["n"]), float(data["log_likelihood"]), float(data["icl"])
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"not a von Mises mixture description: {err}") from None
-        if not len(tensors[0]) == len(tensors[1]) == len(tensors[2]) > 0:
+        if not len(mu) == len(kappa) == len(weight) > 0:
             raise InputError("von Mises mixture: mu, kappa and weight must be non-empty and of equal length")
-        return cls(*tensors, n, ll, icl)
+        return cls(mu, kappa, weight, n, ll, icl)
 
 
 def _padded(datasets: Sequence) -> tuple[Tensor, Tensor]:
@@ -148,16 +148,18 @@ def _fit_batch(theta: Tensor, mask: Tensor, ks: Tensor, max_kappa: float, max_st
     n = weight.sum(1)
     previous = torch.full_like(n, -math.inf)
     done = torch.zeros_like(n, dtype=torch.bool)
-    mu = kappa = log_weight = None  # the fit so far: none before the first M step
+    fit: tuple[Tensor, Tensor, Tensor] | None = None  # (mu, kappa, log_weight) so far: none before the first M step
     for _ in range(max_steps):
         resp = resp * weight[:, :, None]
         mass = resp.sum(1)
         z = (torch.polar(torch.ones_like(theta), theta)[:, :, None] * resp).sum(1)
-        step = [torch.angle(z), kappa_ml(z.abs() / mass.clamp_min(1e-12), max_kappa, 2 if kappa is not None else 4, kappa),
-                torch.log(mass / n[:, None]).masked_fill(~active, -math.inf)]
-        if kappa is not None:  # a converged row keeps its fit: each row's result is that of its own EM
-            step = [torch.where(done[:, None], old, new) for old, new in zip((mu, kappa, log_weight), step)]
+        start = None if fit is None else fit[1]
+        step = (torch.angle(z), kappa_ml(z.abs() / mass.clamp_min(1e-12), max_kappa, 4 if start is None else 2, start),
+                torch.log(mass / n[:, None]).masked_fill(~active, -math.inf))
         mu, kappa, log_weight = step
+        if fit is not None:  # a converged row keeps its fit: each row's result is that of its own EM
+            mu, kappa, log_weight = (torch.where(done[:, None], old, new) for old, new in zip(fit, step))
+        fit = mu, kappa, log_weight
         log_joint = _component_log(theta, mu, kappa, log_weight)
         log_mix = torch.logsumexp(log_joint, -1)
         ll = (log_mix * weight).sum(1)
@@ -182,8 +184,8 @@ def fit_mixtures(datasets: Sequence, max_k: int = 4, max_kappa: float = MAX_KAPP
     n = mask.sum(1)
     candidates = []  # (data set, K) pairs, fitted as one batch
     for i in range(len(theta)):
-        ks = [k] if k is not None else range(1, max(1, min(max_k, int(n[i]) // 3)) + 1)
-        candidates += [(i, kk) for kk in ks]
+        sizes = [k] if k is not None else range(1, max(1, min(max_k, int(n[i]) // 3)) + 1)
+        candidates += [(i, kk) for kk in sizes]
     rows = torch.tensor([i for i, _ in candidates])
     ks = torch.tensor([kk for _, kk in candidates])
     mu, kappa, probs, ll, icl = _fit_batch(theta[rows], mask[rows], ks, max_kappa)
