@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from training.recognition.records import FoldEntry, Report
 from training.recognition.report import shown
 
 OUTCOMES = ("accuracy", "top1", "correct", "ambiguous", "ignorant", "wrong")
@@ -32,27 +33,27 @@ def figure_rgb(figure: Figure) -> np.ndarray:
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def _panels(axes, fold: dict) -> None:
-    stages = fold["stages"]
-    xs = [s["step"] for s in stages]
+def _panels(axes, fold: FoldEntry) -> None:
+    stages = fold.stages
+    xs = [s.stage.step for s in stages]
     top = axes[0]
     for name in OUTCOMES:  # a stage tested before top-1 was reported has none: a gap (report.without_top1)
-        top.plot(xs, [s["test"].get(name, np.nan) for s in stages], marker="o", markersize=3, label=NAMES.get(name, name))
+        top.plot(xs, [_or_nan(getattr(s.test, name)) for s in stages], marker="o", markersize=3, label=NAMES.get(name, name))
     top.set_ylim(0, 1.12)
     top.set_ylabel("share of test views")
-    for x, s in zip(xs, stages):
-        text = f"{s['t_ksd']:.2f}".lstrip("0") if 0 < s["t_ksd"] < 1 else f"{s['t_ksd']:.0f}"
-        box = {"boxstyle": "square,pad=0.15", "fill": False} if s["target_met"] else None
+    for x, s in zip(xs, (s.stage for s in stages)):
+        text = f"{s.t_ksd:.2f}".lstrip("0") if 0 < s.t_ksd < 1 else f"{s.t_ksd:.0f}"
+        box = {"boxstyle": "square,pad=0.15", "fill": False} if s.target_met else None
         top.text(x, 1.06, text, ha="center", va="center", fontsize=7, bbox=box)
-    top.set_title(f"fold {fold['fold']}: test results (t_KSD above; boxed: met)", fontsize=9)
+    top.set_title(f"fold {fold.fold}: test results (t_KSD above; boxed: met)", fontsize=9)
     middle = axes[1]
     for key, name in (("bn", "in the networks"), ("different", "different"), ("queried", "queried per recognition")):
-        middle.plot(xs, [s["features"][key] for s in stages], marker="o", markersize=3, label=name)
+        middle.plot(xs, [getattr(s.features, key) for s in stages], marker="o", markersize=3, label=name)
     middle.set_ylabel("features")
-    axes[2].plot(xs, [s["features"]["sampled"] for s in stages], marker="o", markersize=3, label="sampled so far")
+    axes[2].plot(xs, [s.features.sampled for s in stages], marker="o", markersize=3, label="sampled so far")
     axes[2].set_ylabel("features sampled")
     if len(axes) > 3:
-        axes[3].plot(xs, [s.get("classes", 0) for s in stages], marker="o", markersize=3, label="classes taught")
+        axes[3].plot(xs, [s.stage.classes for s in stages], marker="o", markersize=3, label="classes taught")
         axes[3].set_ylabel("classes")
     for ax in axes:
         ax.legend(fontsize=7, loc="best")
@@ -61,12 +62,17 @@ def _panels(axes, fold: dict) -> None:
     axes[-1].set_xlabel("stage (its running number in the fold)")
 
 
-def _incremental(folds: list[dict]) -> bool:
+def _or_nan(value: float | None) -> float:
+    """A figure, NaN (a gap in a curve) where not available."""
+    return np.nan if value is None else value
+
+
+def _incremental(folds: list[FoldEntry]) -> bool:
     """Whether any fold's stages teach more classes (figure 5.11's extra row of panels)."""
-    return any(f["stages"] and f["stages"][0].get("classes") != f["stages"][-1].get("classes") for f in folds)
+    return any(f.stages and f.stages[0].stage.classes != f.stages[-1].stage.classes for f in folds)
 
 
-def _curves(folds: list[dict], title: str, incremental: bool) -> Figure:
+def _curves(folds: list[FoldEntry], title: str, incremental: bool) -> Figure:
     rows = 4 if incremental else 3
     figure, axes = subplots(rows, len(folds), figsize=(5.2 * len(folds), 2.6 * rows), squeeze=False)
     for k, fold in enumerate(folds):
@@ -80,37 +86,36 @@ def _title(config: dict) -> str:
     return f"{config.get('task', 'task')}{'-inc' if config.get('incremental') else ''}, seed {config.get('seed', '?')}"
 
 
-def curves_figure(report: dict) -> Figure:
+def curves_figure(report: Report) -> Figure:
     """The folds' figure 5.1 curves side by side, titled with the task and the seed (a matplotlib
     figure)."""
-    folds = report["folds"]
-    return _curves(folds, _title(report.get("config", {})), _incremental(folds))
+    return _curves(report.folds, _title(report.config), _incremental(report.folds))
 
 
-def fold_curves_figure(fold: dict, config: dict) -> Figure:
+def fold_curves_figure(fold: FoldEntry, config: dict) -> Figure:
     """One fold's report entry in the form of :func:`curves_figure` (its column of panels), titled
     with the task, the seed and the fold (a matplotlib figure, for the fold's TensorBoard run)."""
-    return _curves([fold], f"{_title(config)}, fold {fold['fold']}", _incremental([fold]))
+    return _curves([fold], f"{_title(config)}, fold {fold.fold}", _incremental([fold]))
 
 
-def growth_figure(report: dict) -> Figure:
+def growth_figure(report: Report) -> Figure:
     """Figure 5.19: features sampled so far against classes taught, log-log, for every fold (and
     fold 1 of every further seed of a ``--seeds`` run, in grey) with the power law a * classes**b
     fitted over the folds (the report's ``growth`` block; ``seeds.growth`` in the title)."""
-    growth, config = report["growth"], report.get("config", {})
+    growth, config = report.growth, report.config
     figure, ax = subplots(figsize=(6.4, 4.6))
-    for k, points in growth["sampled"].items():
-        ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {shown(growth['folds'][k]['exponent'])}")
-    seeds = report.get("seeds", {}).get("growth")
+    for k, points in growth.sampled.items():
+        ax.plot(*zip(*points), marker="o", markersize=3, label=f"fold {k}: b = {shown(growth.folds[k].exponent)}")
+    seeds = report.seeds.growth if report.seeds is not None else None
     if seeds:
-        more = seeds["seeds"][1:]
-        for n, points in enumerate(list(seeds["sampled"].values())[1:]):
+        more = seeds.seeds[1:]
+        for n, points in enumerate(list(seeds.sampled.values())[1:]):
             ax.plot(*zip(*points), color="0.6", linewidth=0.8, marker=".", markersize=3, zorder=1,
-                    label=f"fold {seeds['fold']}, seed{'s' * (len(more) > 1)} {_span(more)}" if n == 0 else None)
-    classes = np.array(sorted({c for points in growth["sampled"].values() for c, _ in points}))
-    if growth["exponent"] is not None:
-        ax.plot(classes, growth["scale"] * classes.astype(float) ** growth["exponent"], "k--", linewidth=1,
-                label=f"fit a * classes^b: b = {growth['exponent']:.2f}{_interval(growth['interval'])}")
+                    label=f"fold {seeds.fold}, seed{'s' * (len(more) > 1)} {_span(more)}" if n == 0 else None)
+    classes = np.array(sorted({c for points in growth.sampled.values() for c, _ in points}))
+    if growth.exponent is not None:
+        ax.plot(classes, growth.scale * classes.astype(float) ** growth.exponent, "k--", linewidth=1,
+                label=f"fit a * classes^b: b = {growth.exponent:.2f}{_interval(growth.interval)}")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ticks = [classes[0]]
@@ -126,7 +131,7 @@ def growth_figure(report: dict) -> Figure:
     ax.legend(fontsize=7, loc="upper left")
     title = f"{_title(config)}: figure 5.19 form"
     if seeds:
-        title += f"\nb over seeds {_span(seeds['seeds'])}: {shown(seeds['mean'])}{_interval(seeds['interval'])}"
+        title += f"\nb over seeds {_span(seeds.seeds)}: {shown(seeds.mean)}{_interval(seeds.interval)}"
     ax.set_title(title, fontsize=10)
     figure.tight_layout()
     return figure
