@@ -14,6 +14,8 @@ from matplotlib.figure import Figure
 
 from training.recognition.records import FoldEntry, Report
 from training.recognition.report import shown
+from training.recognition.robustness import TypeRow
+from training.recognition.tradeoff import Tradeoff
 
 OUTCOMES = ("accuracy", "top1", "correct", "ambiguous", "ignorant", "wrong")
 NAMES = {"accuracy": "accuracy (def. 4.6)", "top1": "top-1 accuracy"}  # legend names where not the key
@@ -147,23 +149,23 @@ def _interval(interval: list[float]) -> str:
     return "" if low is None else f" (95% {low:.2f}-{high:.2f})"
 
 
-def feature_types_figure(types: dict, title: str) -> Figure:
+def feature_types_figure(types: dict[str, TypeRow], title: str) -> Figure:
     """The robustness benchmark's per-type table (``average.types``) as two panels: how often each
     feature type's nodes fire on their own class per set (bars; the false-alarm rate on the other
     classes as a black tick), and how often their states flip under each perturbation."""
-    kinds = sorted(types, key=lambda k: -types[k]["nodes"])
-    sets = list(types[kinds[0]]["own"])
-    flips = list(types[kinds[0]]["flipped"])
+    kinds = sorted(types, key=lambda k: -types[k].nodes)
+    sets = list(types[kinds[0]].own)
+    flips = list(types[kinds[0]].flipped)
     figure, (left, right) = subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [len(sets), max(1, len(flips))]})
     width = 0.8 / len(kinds)
     for j, kind in enumerate(kinds):
         t = types[kind]
         at = np.arange(len(sets)) + (j - (len(kinds) - 1) / 2) * width
-        left.bar(at, [t["own"][n] or 0 for n in sets], width, label=f"{kind} ({t['nodes']} node{'s' * (t['nodes'] != 1)})")
-        left.scatter(at, [t["other"][n] or 0 for n in sets], marker="_", color="k", s=60, zorder=3,
+        left.bar(at, [t.own[n] or 0 for n in sets], width, label=f"{kind} ({t.nodes} node{'s' * (t.nodes != 1)})")
+        left.scatter(at, [t.other[n] or 0 for n in sets], marker="_", color="k", s=60, zorder=3,
                      label="present on other classes" if j == 0 else None)
         at = np.arange(len(flips)) + (j - (len(kinds) - 1) / 2) * width
-        right.bar(at, [t["flipped"][n] or 0 for n in flips], width)
+        right.bar(at, [t.flipped[n] or 0 for n in flips], width)
     left.set_xticks(range(len(sets)), sets)
     left.set_ylabel("share of own-class views where present")
     left.set_ylim(0, 1)
@@ -184,31 +186,31 @@ METHODS = {"ftorch": ("ftorch", "o", "C0"), "sift": ("SIFT, ratio per view", "s"
            "sift_across": ("SIFT, ratio across classes", "D", "C3"), "pixel_nn": ("pixel 1-NN", "^", "C2")}
 
 
-def tradeoff_figure(result: dict, title: str) -> Figure:
+def tradeoff_figure(result: Tradeoff, title: str) -> Figure:
     """The accuracy-per-byte front (training/recognition/tradeoff.py): mean top-1 accuracy over the
     sets, then top-1 accuracy per set, against bytes stored per class (log axis), one line per method
     through its settings in order of bytes, each point named by its setting; ftorch's accuracy of
     def. 4.6 (its open-world answer) beside its top-1, dotted; the 4 kB budget dashed."""
-    sets = result["sets"]
+    sets = result.sets
     panels = [("mean over the sets", "mean"), *[(s, s) for s in sets]]
     cols = min(3, len(panels))
     rows = -(-len(panels) // cols)
     figure, axes = subplots(rows, cols, figsize=(5 * cols, 4 * rows), squeeze=False)
     for ax, (heading, key) in zip(axes.flat, panels):
         for method, (name, marker, colour) in METHODS.items():
-            points = sorted((p for p in result["points"] if p["method"] == method
-                             and (key == "mean" or key in p["accuracy"])), key=lambda p: p["bytes_per_class"])
+            points = sorted((p for p in result.points if p.method == method
+                             and (key == "mean" or key in p.accuracy)), key=lambda p: p.bytes_per_class)
             if not points:
                 continue
-            xs = [p["bytes_per_class"] for p in points]
-            ys = [p["mean_top1"] if key == "mean" else p["top1"][key] for p in points]
+            xs = [p.bytes_per_class for p in points]
+            ys = [p.mean_top1 if key == "mean" else p.top1[key] for p in points]
             ax.plot(xs, ys, marker=marker, color=colour, label=f"{name}, top-1")
             if method == "ftorch":
-                ax.plot(xs, [p["mean"] if key == "mean" else p["accuracy"][key] for p in points], marker=marker,
+                ax.plot(xs, [p.mean if key == "mean" else p.accuracy[key] for p in points], marker=marker,
                         color=colour, linestyle=":", fillstyle="none", label=f"{name}, accuracy (def. 4.6)")
             if key == "mean":
                 for p, y in zip(points, ys):
-                    ax.annotate(p["setting"].replace(" keypoints", "").replace(" pixels", ""), (p["bytes_per_class"], y),
+                    ax.annotate(p.setting.replace(" keypoints", "").replace(" pixels", ""), (p.bytes_per_class, y),
                                 fontsize=6, xytext=(3, -8), textcoords="offset points")
         ax.axvline(4096, color="k", linestyle="--", linewidth=0.8)
         ax.set_xscale("log")

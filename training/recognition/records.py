@@ -12,14 +12,20 @@ field marked ``inline`` writes its value's keys in line (a stage's own fields, :
 """
 from __future__ import annotations
 
+import math
 import types
 import typing
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from ftorch.recognition.stages import ClassAdded, Stage
+import numpy as np
+
+from ftorch.recognition.stages import ClassAdded, Cycle, Stage
+
+STAGE_RECORDS = (Stage, ClassAdded, Cycle)  # the schedule's records: their own to_dict / from_dict
 
 OPTIONAL = {"optional": True}  # left out of the JSON where None
+INLINE = {"inline": True}  # the value's keys written in line
 
 
 def key(name: str, **more) -> dict:
@@ -37,7 +43,7 @@ class Record:
             if value is None and f.metadata.get("optional"):
                 continue
             if f.metadata.get("inline"):
-                out.update(value.to_dict())
+                out.update(_written(value))
             else:
                 out[f.metadata.get("key", f.name)] = _written(value)
         return out
@@ -46,11 +52,14 @@ class Record:
     def from_json(cls, data: dict):
         """The record from its JSON object (extra keys are ignored; a missing optional one is None)."""
         hints = typing.get_type_hints(cls)
+        names = {f.metadata.get("key", f.name) for f in fields(cls)}  # type: ignore[arg-type]
         values = {}
         for f in fields(cls):  # type: ignore[arg-type]
             name = f.metadata.get("key", f.name)
-            if f.metadata.get("inline"):
-                values[f.name] = hints[f.name].from_dict(data)
+            if f.metadata.get("inline"):  # a record or stage: its keys; a dict: the keys no other field has
+                hint = hints[f.name]
+                values[f.name] = _read(hint, {k: v for k, v in data.items() if k not in names} if typing.get_origin(hint) is dict
+                                       else data)
             elif name in data:
                 values[f.name] = _read(hints[f.name], data[name])
             elif not f.metadata.get("optional"):
@@ -62,7 +71,7 @@ def _written(value):
     """``value`` as JSON holds it: records and stage entries as objects, the rest as it is."""
     if isinstance(value, Record):
         return value.to_json()
-    if isinstance(value, (Stage, ClassAdded)):
+    if isinstance(value, STAGE_RECORDS):
         return value.to_dict()
     if isinstance(value, dict):
         return {k: _written(v) for k, v in value.items()}
@@ -82,7 +91,7 @@ def _read(hint, value):
         return {k: _read(args[1], v) for k, v in value.items()}
     if isinstance(hint, type) and issubclass(hint, Record):
         return hint.from_json(value)
-    if hint in (Stage, ClassAdded):
+    if hint in STAGE_RECORDS:
         return hint.from_dict(value)
     return value
 
@@ -137,7 +146,7 @@ class StageEntry(Record):
     """A finished stage's report entry: the stage (alg. 5.3) in line, then its test on the test views
     of the classes taught, feature counts, confusion rows per class and the seconds so far."""
 
-    stage: Stage = field(metadata={"inline": True})
+    stage: Stage = field(metadata=INLINE)
     test: TestBlock
     features: FeatureBlock
     confusion: dict[Any, ConfusionRow]
@@ -236,6 +245,46 @@ class SeedStudy(Record):
 
 
 @dataclass
+class PeerScores(Record):
+    """A peer on every set (def. 4.5, 4.6 and top-1), with what it stores per class."""
+
+    bytes_per_class: float
+    views_per_class: float | None = field(default=None, metadata=OPTIONAL)  # pixel 1-NN
+    descriptors_per_view: float | None = field(default=None, metadata=OPTIONAL)  # SIFT matching
+    sets: dict[str, TestBlock] = field(default_factory=dict, metadata=INLINE)
+
+
+@dataclass
+class PeerFold(Record):
+    """``recognize --peers``: the peers on one fold's clean test views."""
+
+    fold: int
+    pixel_nn: PeerScores
+    sift: PeerScores
+    seconds: float
+
+
+@dataclass(kw_only=True)
+class PeerMeans(Record):
+    """A peer's figures averaged over folds: what it stores, its accuracy (def. 4.6) and top-1 accuracy
+    on the clean test views."""
+
+    bytes_per_class: float
+    views_per_class: float | None = field(default=None, metadata=OPTIONAL)
+    descriptors_per_view: float | None = field(default=None, metadata=OPTIONAL)
+    clean: float
+    clean_top1: float
+
+
+@dataclass
+class SplitPeers(Record):
+    """The peers on each fold's clean test views (``recognize --peers``), per fold and averaged."""
+
+    folds: list[PeerFold]
+    average: dict[str, PeerMeans]
+
+
+@dataclass
 class Report(Record):
     """A recognition run's report.json: the task, where it ran, its config (as RunConfig.to_dict wrote
     it), every fold's entry, the averages, and where asked the seed study, the growth (incremental),
@@ -253,9 +302,18 @@ class Report(Record):
     seeds: SeedStudy | None = field(default=None, metadata=OPTIONAL)
     growth: Growth | None = field(default=None, metadata=OPTIONAL)
     gpu_memory_mib: dict | None = field(default=None, metadata=OPTIONAL)
-    peers: dict | None = field(default=None, metadata=OPTIONAL)
+    peers: SplitPeers | None = field(default=None, metadata=OPTIONAL)
 
     @property
     def incremental(self) -> bool:
         return bool(self.config.get("incremental"))
 
+
+
+def mean_block(blocks: list):
+    """The field-wise mean of records of one kind (NaN where some lack a figure, None where all do)."""
+    values = {}
+    for f in fields(blocks[0]):
+        known = [getattr(b, f.name) for b in blocks]
+        values[f.name] = None if all(v is None for v in known) else math.nan if None in known else float(np.mean(known))
+    return type(blocks[0])(**values)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,7 @@ from .records import (
     StageAverage,
     StageEntry,
     TestBlock,
+    mean_block,
 )
 
 
@@ -75,16 +76,7 @@ def average(folds: list[FoldEntry], which: int) -> StageAverage:
     NaN (null, n/a) for a figure some fold's stage lacks, None where every one lacks it: ``top1`` of a
     stage tested before top-1 was reported, in a fold resumed from such a checkpoint (:func:`without_top1`)."""
     stages = [f.stages[which] for f in folds]
-    return StageAverage(_mean_block([s.test for s in stages]), _mean_block([s.features for s in stages]))
-
-
-def _mean_block(blocks: list):
-    """The field-wise mean of records of one kind (NaN where some lack a figure, None where all do)."""
-    values = {}
-    for f in fields(blocks[0]):
-        known = [getattr(b, f.name) for b in blocks]
-        values[f.name] = None if all(v is None for v in known) else math.nan if None in known else float(np.mean(known))
-    return type(blocks[0])(**values)
+    return StageAverage(mean_block([s.test for s in stages]), mean_block([s.features for s in stages]))
 
 
 def without_top1(folds: list[FoldEntry], names: list[str] | None = None) -> list[str]:
@@ -412,18 +404,18 @@ def write_markdown(path: Path, report: Report, figures: list[str]) -> None:
 
 def _peers_section(report: Report) -> list[str]:
     """``recognize --peers``: pixel 1-NN and SIFT matching beside the final stage, on the same splits."""
-    mean, final = report.peers["average"], report.average.final
+    peers, final = report.peers.average, report.average.final
+    pixels, sift = peers["pixel_nn"], peers["sift"]
     return ["## Peers on the same splits (clean test views, mean over folds; compared on top-1 accuracy)", "",
-                  "Each method gives one label per image (ftorch its top label); def. 4.6's accuracy scores ftorch's "
-                  "open-world answer, the set of classes it recognizes, as the thesis does.", "",
-                  "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |", "|---|---|---|---|",
-                  f"| ftorch (final stage) | {shown(final.test.top1)} | {final.test.accuracy:.2f} | "
-                  f"{final.features.bn / len(report.classes):.1f} features (network nodes) |",
-                  f"| pixel 1-NN | {shown(mean['pixel_nn'].get('clean_top1'))} | {mean['pixel_nn']['clean']:.2f} | "
-                  f"{mean['pixel_nn']['views_per_class']:.0f} views, {mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
-                  f"| SIFT matching (ratio 0.75) | {shown(mean['sift'].get('clean_top1'))} | {mean['sift']['clean']:.2f} | "
-                  f"{mean['sift']['descriptors_per_view']:.0f} descriptors per view, {mean['sift']['bytes_per_class'] / 1024:.0f} kB |", ""]
-
+            "Each method gives one label per image (ftorch its top label); def. 4.6's accuracy scores ftorch's "
+            "open-world answer, the set of classes it recognizes, as the thesis does.", "",
+            "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |", "|---|---|---|---|",
+            f"| ftorch (final stage) | {shown(final.test.top1)} | {final.test.accuracy:.2f} | "
+            f"{final.features.bn / len(report.classes):.1f} features (network nodes) |",
+            f"| pixel 1-NN | {shown(pixels.clean_top1)} | {pixels.clean:.2f} | "
+            f"{pixels.views_per_class:.0f} views, {pixels.bytes_per_class / 1024:.0f} kB |",
+            f"| SIFT matching (ratio 0.75) | {shown(sift.clean_top1)} | {sift.clean:.2f} | "
+            f"{sift.descriptors_per_view:.0f} descriptors per view, {sift.bytes_per_class / 1024:.0f} kB |", ""]
 
 def _seeds_section(s: SeedStudy) -> list[str]:
     """Figure 5.5's seed study, and figure 5.19's exponent over seeds where incremental."""
