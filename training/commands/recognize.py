@@ -97,8 +97,8 @@ class FoldResult:
     figures: list[str]
 
 
-def shared_records(args, task: Task, jobs: list[FoldJob], device: torch.device) -> dict[tuple, ImageRecords]:
-    """The records of the view sets the jobs train and test on, by their indices, each computed once.
+def shared_records(args, task: Task, folds: list[int], device: torch.device) -> dict[tuple, ImageRecords]:
+    """The records of the view sets the jobs of ``folds`` train and test on, by their indices, each computed once.
 
     Fold 2 trains on fold 1's test views and tests on its training views, and every seed's fold 1
     uses the same views, so computing them per job repeated the same work (in the same batches: the
@@ -110,8 +110,7 @@ def shared_records(args, task: Task, jobs: list[FoldJob], device: torch.device) 
     """
     if args.ray is not None or (args.workers > 1 and device.type != "cpu"):
         return {}
-    views = list(dict.fromkeys(tuple(indices) for job in jobs
-                               for indices in task.fold(job.fold)[1 if args.augment else 0:]))
+    views = list(dict.fromkeys(tuple(indices) for k in folds for indices in task.fold(k)[1 if args.augment else 0:]))
     space = FeatureSpace().to(device)
     free = shutil.disk_usage(SHARED_MEMORY).free if args.workers > 1 and Path(SHARED_MEMORY).is_dir() else None
     # e.g. a container's 64 MB /dev/shm: the workers compute their own, as on Ray; known from the
@@ -331,7 +330,7 @@ def _recognize(args, config: RunConfig, device: torch.device, task: Task, folder
                     args.resume, args.checkpoint_every)
             for s, o, t in run_folders(args, out, logdir) for k in range(1, args.folds + 1 if s == args.seed else 2)]
     names = [f"fold {j.fold} seed {j.config.seed}" for j in jobs]
-    records = shared_records(args, task, jobs, device)
+    records = shared_records(args, task, [job.fold for job in jobs], device)
     jobs = [replace(job, records=records) for job in jobs]
     results: list[FoldResult] = run_jobs(fold_task, jobs, names, args, out, "tasks")
     folds = [r.entry for r in results[: args.folds]]

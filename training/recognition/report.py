@@ -161,9 +161,9 @@ def seed_study(runs: list[FoldEntry], seeds: list[int]) -> SeedStudy:
     def top1(stages: list[StageEntry]) -> Spread:  # NaN: a stage without it (without_top1)
         return spread([math.nan if s.test.top1 is None else s.test.top1 for s in stages])
 
-    return SeedStudy(seeds, runs[0].fold, spread(novice), spread(expert), top1(novices), top1(experts),
-                     spread([s.features.queried for s in novices]), spread([s.features.queried for s in experts]),
-                     float(test.statistic), float(test.pvalue))
+    return SeedStudy(seeds=seeds, fold=runs[0].fold, novice=spread(novice), expert=spread(expert), novice_top1=top1(novices),
+                     expert_top1=top1(experts), novice_queried=spread([s.features.queried for s in novices]),
+                     expert_queried=spread([s.features.queried for s in experts]), t=float(test.statistic), p=float(test.pvalue))
 
 
 def _novice(run: FoldEntry) -> StageEntry:
