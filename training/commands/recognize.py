@@ -397,27 +397,38 @@ def task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: st
     device_options(p)
 
 
+@dataclass(frozen=True)
+class OptionText:
+    """How a settings field describes itself on the command line (``ftorch.settings.option``'s metadata)."""
+
+    help: str
+    metavar: str | None = None
+    at_least: int | None = None
+    at_most: int | None = None
+    what: str | None = None
+
+
 def _learner_options(p: argparse.ArgumentParser) -> None:
     """One option per learner setting, as :class:`LearnerSettings` describes it (its defaults: the measured best)."""
     for f in fields(LearnerSettings):
-        flag, meta, default = "--" + f.name.replace("_", "-"), f.metadata, f.default
+        flag, text, default = "--" + f.name.replace("_", "-"), OptionText(**f.metadata), f.default
         if isinstance(default, bool):
-            p.add_argument(flag, action="store_true", help=f"{meta['help']} (default off)")
+            p.add_argument(flag, action="store_true", help=f"{text.help} (default off)")
         elif isinstance(default, int):
-            p.add_argument(flag, type=at_least(meta["at_least"], meta["what"], meta["at_most"]), default=default,
-                           metavar=meta["metavar"], help=f"{meta['help']} (default {default})")
+            p.add_argument(flag, type=at_least(text.at_least, text.what, text.at_most), default=default,
+                           metavar=text.metavar, help=f"{text.help} (default {default})")
         elif f.name == "primitives":
-            p.add_argument(flag, type=primitives, default=",".join(default), metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {','.join(default)})")
+            p.add_argument(flag, type=primitives, default=",".join(default), metavar=text.metavar,
+                           help=f"{text.help} (default {','.join(default)})")
         elif f.name == "regions":
-            p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {','.join(default) or 'none'})")
+            p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=text.metavar,
+                           help=f"{text.help} (default {','.join(default) or 'none'})")
         elif f.name == "evidence":
             p.add_argument(flag, choices=[str(e) for e in Evidence], default=str(default),
-                           help=f"{meta['help']} (default {default})")
+                           help=f"{text.help} (default {default})")
         else:
-            p.add_argument(flag, type=number, default=default, metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {default:g})")
+            p.add_argument(flag, type=number, default=default, metavar=text.metavar,
+                           help=f"{text.help} (default {default:g})")
 
 
 def learner_settings(args) -> LearnerSettings:

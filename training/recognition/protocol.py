@@ -172,6 +172,36 @@ def same_images(task: Task, recorded: str | None, run: str, data) -> None:
 
 
 @dataclass
+class SavedProgress(Record):
+    """A fold's progress as its checkpoint stores it: the schedule's (:class:`Progress`) with the
+    finished stages' report entries in place of the stages, and the seconds so far."""
+
+    phase: int
+    stage: int
+    t_ksd: float
+    cycles: list[Cycle]
+    stages: list[StageEntry]
+    misses: int
+    done: bool
+    total_cycles: int
+    seconds: float
+    added: list[ClassAdded]
+    sampled_before: int
+
+    def check(self) -> None:
+        """ValueError where a field has the wrong type or range."""
+        counts = [self.phase, self.stage, self.misses, self.total_cycles, self.sampled_before]
+        if any(isinstance(n, bool) or not isinstance(n, int) or n < 0 for n in counts):
+            raise ValueError(f"progress counts {counts} must be integers >= 0")
+        if not (isinstance(self.t_ksd, (int, float)) and 0.0 <= self.t_ksd <= 1.0):
+            raise ValueError(f"t_KSD {self.t_ksd!r} outside [0, 1]")
+        if not (isinstance(self.seconds, (int, float)) and 0.0 <= self.seconds < math.inf):
+            raise ValueError(f"seconds {self.seconds!r} is not a duration")
+        if not isinstance(self.done, bool):
+            raise ValueError("done must be true or false")
+
+
+@dataclass
 class FoldState:
     """A fold's progress, which its checkpoint stores beside the learner: the schedule's
     (:class:`Progress`), the finished stages' report entries, and the seconds so far."""
@@ -182,30 +212,22 @@ class FoldState:
 
     def to_dict(self) -> dict:
         p = self.progress
-        return {"phase": p.phase, "stage": p.stage, "t_ksd": p.t_ksd, "cycles": [c.to_dict() for c in p.cycles],
-                "stages": [e.to_json() for e in self.entries], "misses": p.misses, "done": p.done, "total_cycles": p.total_cycles,
-                "seconds": self.seconds, "added": [a.to_dict() for a in p.added], "sampled_before": p.sampled_before}
+        return SavedProgress(p.phase, p.stage, p.t_ksd, p.cycles, self.entries, p.misses, p.done, p.total_cycles,
+                             self.seconds, p.added, p.sampled_before).to_json()
 
     @classmethod
     def from_dict(cls, state: dict) -> "FoldState":
         """The progress read from a checkpoint; ValueError where a field is missing or has the wrong type or range."""
-        names = list(cls().to_dict())
+        names = [f.name for f in fields(SavedProgress)]
         if not isinstance(state, dict) or sorted(state) != sorted(names):
             raise ValueError(f"progress fields {sorted(state) if isinstance(state, dict) else state!r}, expected {names}")
-        counts = ("phase", "stage", "misses", "total_cycles", "sampled_before")
-        if any(isinstance(state[k], bool) or not isinstance(state[k], int) or state[k] < 0 for k in counts):
-            raise ValueError(f"progress counts {[state[k] for k in counts]} must be integers >= 0")
-        if not (isinstance(state["t_ksd"], (int, float)) and 0.0 <= state["t_ksd"] <= 1.0):
-            raise ValueError(f"t_KSD {state['t_ksd']!r} outside [0, 1]")
-        if not (isinstance(state["seconds"], (int, float)) and 0.0 <= state["seconds"] < math.inf):
-            raise ValueError(f"seconds {state['seconds']!r} is not a duration")
-        if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
-            raise ValueError("done must be true or false, and cycles, stages and added lists")
-        progress = Progress(state["phase"], state["stage"], state["t_ksd"], [Cycle.from_dict(c) for c in state["cycles"]],
-                            [Stage.from_dict(e) for e in state["stages"]], state["misses"], state["done"],
-                            state["total_cycles"], [ClassAdded.from_dict(a) for a in state["added"]],
-                            state["sampled_before"])
-        return cls(progress, [StageEntry.from_json(e) for e in state["stages"]], state["seconds"])
+        if not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):  # before they are read
+            raise ValueError("cycles, stages and added must be lists")
+        saved = SavedProgress.from_json(state)
+        saved.check()
+        progress = Progress(saved.phase, saved.stage, saved.t_ksd, saved.cycles, [e.stage for e in saved.stages], saved.misses,
+                            saved.done, saved.total_cycles, saved.added, saved.sampled_before)
+        return cls(progress, saved.stages, saved.seconds)
 
 
 def load_learner(path) -> DistinctiveFeatureLearner:
