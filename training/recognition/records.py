@@ -1,6 +1,7 @@
 """Typed records of a recognition run's report: the test, feature and confusion blocks of a stage
 (tables 4.2-4.4, 5.1-5.3), the stage and fold entries, the seed study (figure 5.5), the growth of
-the features sampled (figure 5.19), and the report itself.
+the features sampled (figure 5.19), the peers on the same splits, and the report itself; the
+robustness and tradeoff benchmarks, evaluate and salient build their files from the same base.
 
 Decision: the runner builds these records and every reader takes them; they become dicts only at
 the JSON boundary, in one generic :meth:`Record.to_json` / :meth:`Record.from_json` driven by the
