@@ -20,6 +20,7 @@ from ftorch.grasp import GraspLearner
 from ftorch.recognition.environment import ImageSet
 from training import run
 from training.cli import outputs
+from training.recognition.records import ConfusionRow
 from training.recognition.report import confusion_table
 
 from .test_hardening import RUN, exit_code, one_line
@@ -386,7 +387,7 @@ def test_class_folders_take_every_image_opencv_reads_and_name_what_they_leave_ou
 
 def test_a_class_name_with_a_bar_or_a_newline_keeps_the_tables_whole():
     classes = ["a|b", "line\nbreak"]
-    rows = {c: {"as": {k: int(k == c) for k in classes}, "ambiguous": 0, "confused": 0, "ignorant": 0, "features": 2}
+    rows = {c: ConfusionRow(recognized_as={k: int(k == c) for k in classes}, ambiguous=0, confused=0, ignorant=0, features=2)
             for c in classes}
     table = confusion_table(rows, classes)
     widths = {len([cell for cell in line.replace("\\|", "").split("|")]) for line in table}

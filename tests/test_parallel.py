@@ -4,6 +4,7 @@ import json
 import re
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -158,9 +159,11 @@ def test_a_process_without_shared_records_computes_each_view_set_once(tmp_path, 
     assert report_text(tmp_path / "own") == report_text(tmp_path / "shared")
     calls.clear()  # a worker that runs a task of another data set next (a Ray worker serves many runs)
     other = tmp_path / "other"
-    args = {**vars(run.parser().parse_args([*seeds, "--size", "24"])), "quiet": True}
-    recognize.fold_task({"args": args, "fold": 1, "seed": 1, "out": str(other), "logdir": str(other / "tb"), "incremental": False,
-                   "ledger": Ledger(str(other))})
+    args = run.parser().parse_args([*seeds, "--size", "24", "--quiet"])
+    images = recognize.TaskChoice.of(args)
+    config = recognize.run_config(args, images.load(), recognize.learner_settings(args), torch.device("cpu"), False)
+    recognize.fold_task(recognize.FoldJob(replace(config, seed=1), 1, other, other / "tb", Ledger(str(other)), images, args.device,
+                                          False, False, args.checkpoint_every))
     assert len(calls) == 2  # its own records, not those of the views with the same indices before
 
 
@@ -177,8 +180,8 @@ def test_worker_processes_receive_records_in_shared_memory():
 
 def test_records_are_shared_only_where_workers_can_map_them(monkeypatch):
     args = run.parser().parse_args([*ARGS, "--workers", "2"])
-    task = recognize.load_task(*recognize._task_key(args))
-    jobs = [{"fold": 1}, {"fold": 2}]
+    task = recognize.TaskChoice.of(args).load()
+    jobs = [1, 2]  # the jobs' folds
     shared = recognize.shared_records(args, task, jobs, torch.device("cpu"))
     assert set(shared) == {tuple(ix) for ix in task.fold(1)}  # fold 2's sets are fold 1's
     args.augment = 1  # augmented training sets are drawn per fold: only the test sets are shared

@@ -19,11 +19,13 @@ from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
-from ftorch.recognition.stages import ClassAdded, Progress, next_target
+from ftorch.recognition.stages import ClassAdded, Progress, Stage, next_target
 from training import run
 from training.data.datasets import Task, plym_task
 from training.plots import figure_rgb, fold_curves_figure
 from training.recognition.protocol import Fold, FoldState, RunConfig
+from training.recognition.records import FeatureBlock, FoldEntry, Report, StageEntry
+from training.recognition.records import TestBlock as Scores  # (a Test class would be collected)
 from training.recognition.report import growth, growth_over_seeds, seed_study, write_markdown
 
 CONFIG = RunConfig("plym4", seed=0, learner=LearnerSettings.thesis())
@@ -55,6 +57,7 @@ def without_timing(data):
 
 def test_fold_learns_its_training_set_and_beats_chance(small_task, tmp_path):
     entry, learner = make_fold(small_task, tmp_path).run(max_cycles=30)
+    entry = entry.to_json()  # the report entry as report.json holds it
     stage = entry["stages"][0]
     assert stage["train_learned"] and stage["mistakes_per_cycle"][-1] == 0
     assert stage["test"]["accuracy"] >= 0.5  # chance is 1/4
@@ -69,6 +72,7 @@ def test_fold_learns_its_training_set_and_beats_chance(small_task, tmp_path):
 def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path, monkeypatch):
     """Four expert stages; the run is cut after the first cycle of the last, which learns expert features."""
     whole, learner = make_fold(small_task, tmp_path / "whole").run(max_cycles=4, stages=4)
+    whole = whole.to_json()  # the report entry as report.json holds it
     assert [s["stage"] for s in whole["stages"]] == [0, 1, 2, 3, 4]
     assert whole["stages"][-1]["expert_per_cycle"][0] > 0
     cut_at = sum(s["cycles"] for s in whole["stages"][:-1]) + 1
@@ -93,6 +97,7 @@ def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path, monke
     (tmp_path / "old" / "checkpoint.json").write_text(json.dumps({**old, "version": 3}))
     for folder in ("cut", "old"):
         resumed, again = make_fold(small_task, tmp_path / folder).run(max_cycles=4, stages=4, resume=True)  # fresh image sets
+        resumed = resumed.to_json()  # the report entry as report.json holds it
         assert without_timing(resumed) == without_timing(whole)
         assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
 
@@ -105,6 +110,7 @@ def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_
     monkeypatch.setattr(Fold, "_save", lambda self, learner, order, state: (writes.append(state.progress.total_cycles),
                                                                              save(self, learner, order, state)))
     every, learner = make_fold(small_task, tmp_path / "every").run(max_cycles=2, stages=1)
+    every = every.to_json()  # the report entry as report.json holds it
     steps = len(writes)
     assert steps == every["stages"][-1]["cycles"] + every["stages"][0]["cycles"] + 2  # each cycle and stage end
     clock = iter(range(10**6))
@@ -112,6 +118,7 @@ def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_
     seen, writes[:] = [], []
     once, again = make_fold(small_task, tmp_path / "once").run(max_cycles=2, stages=1, checkpoint_every=10**6,
                                                                after_cycle=seen.append)
+    once = once.to_json()  # the report entry as report.json holds it
     assert len(writes) == 1 and seen == []  # only the final state
     assert without_timing(once) == without_timing(every)
     assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
@@ -171,11 +178,11 @@ def test_recognize_command_report_is_reproducible_and_complete(tmp_path, capsys)
     assert f"device cpu ({a['machine']['cpu']}, {a['machine']['cpu_kernels']} kernels; torch {torch.__version__}" in markdown
     assert "other machines" not in markdown
     a["folds"][0]["machine"] = {**a["machine"], "cpu": "Another CPU"}  # as a Ray node of another kind would report
-    write_markdown(tmp_path / "elsewhere.md", a, [])
+    write_markdown(tmp_path / "elsewhere.md", Report.from_json(a), [])
     assert "Folds trained on other machines: fold 1 on Another CPU, " in (tmp_path / "elsewhere.md").read_text()
     assert "gpu_memory_mib" not in a and "gpu_memory_mib" not in a["folds"][0] and "GPU memory" not in markdown
     a["gpu_memory_mib"] = {"fold 1 seed 3": 812.4, "fold 1 seed 4": 790.0}  # as a run on a GPU reports each task
-    write_markdown(tmp_path / "gpu.md", a, [])
+    write_markdown(tmp_path / "gpu.md", Report.from_json(a), [])
     assert "Peak GPU memory per task (torch's allocator, MiB): fold 1 seed 3 812; fold 1 seed 4 790." in (tmp_path / "gpu.md").read_text()
     assert "| task | cls. | fold | acc." in markdown and "amb. | cnf. | ign. | # feats. BN |" in markdown
     for figure in ("fold1/features.png", "fold1/con6_features.png"):
@@ -213,7 +220,7 @@ def check_events(folder, fold: dict, config: dict) -> None:
     [curves] = events.Images("figures/curves")
     drawn = cv2.cvtColor(cv2.imdecode(np.frombuffer(curves.encoded_image_string, np.uint8), cv2.IMREAD_COLOR),
                          cv2.COLOR_BGR2RGB)
-    assert curves.step == stages[-1]["step"] and np.array_equal(drawn, figure_rgb(fold_curves_figure(fold, config)))
+    assert curves.step == stages[-1]["step"] and np.array_equal(drawn, figure_rgb(fold_curves_figure(FoldEntry.from_json(fold), config)))
 
 
 def test_folder_task_trains_and_a_saved_learner_evaluates_new_images(small_task, tmp_path, capsys):
@@ -277,6 +284,7 @@ def test_t_ksd_schedule(t, ksd_min, expected):
 
 def test_expert_stages_raise_the_target_and_test_after_each(small_task, tmp_path):
     entry, learner = make_fold(small_task, tmp_path).run(max_cycles=4, stages=4)
+    entry = entry.to_json()  # the report entry as report.json holds it
     stages = entry["stages"]
     assert [s["t_ksd"] for s in stages][:2] == [0.0, 0.5]
     for before, after in zip(stages, stages[1:]):
@@ -292,6 +300,7 @@ def test_incremental_fold_adds_one_class_at_a_time(small_task, tmp_path):
     """Alg. 5.4: two classes first, then one more per phase, each phase alg. 5.3 from t = 0; tests
     only on the classes taught; the learner is kept throughout."""
     entry, learner = make_fold(small_task, tmp_path, incremental=True).run(max_cycles=3, stages=1)
+    entry = entry.to_json()  # the report entry as report.json holds it
     stages, classes = entry["stages"], small_task.classes()
     assert [s["classes"] for s in stages] == [2, 2, 3, 3, 4, 4]
     assert [s["t_ksd"] for s in stages][::2] == [0.0, 0.0, 0.0] and [s["step"] for s in stages] == list(range(6))
@@ -311,8 +320,8 @@ def test_growth_exponent_of_figure_5_19_recovers_a_known_power_law():
     for k, (a, b) in enumerate([(40.0, 1.6), (55.0, 1.6)], 1):
         totals = [round(a * c**b) for c in classes]  # features are counted: the power law to the nearest count
         steps = np.diff([0, *totals])
-        folds.append({"fold": k, "added": [{"classes": c, "sampled": int(n)} for c, n in zip(classes, steps)]})
-    g = growth(folds)
+        folds.append(FoldEntry(k, [], [ClassAdded(c, c, int(n), 0) for c, n in zip(classes, steps)]))
+    g = growth(folds).to_json()
     assert g["folds"]["1"]["exponent"] == pytest.approx(1.6, abs=2e-3) == g["folds"]["2"]["exponent"]
     assert g["points"] == 2 * len(classes) and g["interval"][0] < 1.6 < g["interval"][1]
     line = stats.linregress(np.log(classes * 2), np.log([p[1] for k in ("1", "2") for p in g["sampled"][k]]))
@@ -324,22 +333,27 @@ def test_growth_exponent_of_figure_5_19_recovers_a_known_power_law():
 def test_growth_over_seeds_is_a_t_interval_of_the_seeds_exponents():
     classes = list(range(2, 21))
     truth = [1.5, 1.7, 1.6, 1.9]
-    runs = [{"fold": 1, "added": [{"classes": c, "sampled": int(n)} for c, n in
-                                  zip(classes, np.diff([0, *[round(30.0 * c**b) for c in classes]]))]} for b in truth]
-    g = growth_over_seeds(runs, [0, 1, 2, 3])
+    runs = [FoldEntry(1, [], [ClassAdded(c, c, int(n), 0) for c, n in
+                              zip(classes, np.diff([0, *[round(30.0 * c**b) for c in classes]]))]) for b in truth]
+    g = growth_over_seeds(runs, [0, 1, 2, 3]).to_json()
     assert g["exponents"] == pytest.approx(truth, abs=2e-3) and g["seeds"] == [0, 1, 2, 3] and g["fold"] == 1
     b = np.array(g["exponents"])
     half = stats.t.ppf(0.975, 3) * b.std(ddof=1) / 2  # n - 1 = 3 degrees of freedom, sqrt(4) = 2
     assert g["mean"] == pytest.approx(b.mean()) and g["interval"] == pytest.approx([b.mean() - half, b.mean() + half])
-    assert g["exponents"][2] == pytest.approx(growth(runs[2:3])["exponent"])  # each seed's own fit of figure 5.19
-    assert g["sampled"]["2"] == growth(runs[2:3])["sampled"]["1"]  # each seed's curve, drawn in growth.png
+    assert g["exponents"][2] == pytest.approx(growth(runs[2:3]).exponent)  # each seed's own fit of figure 5.19
+    assert g["sampled"]["2"] == growth(runs[2:3]).sampled["1"]  # each seed's curve, drawn in growth.png
+
+
+def stage_tested(accuracy: float, queried: float, classes: int = 4) -> StageEntry:
+    """A stage entry of which a seed study reads the accuracy, the features queried and the classes taught."""
+    return StageEntry(Stage(0, 0, classes, 0.0, 1, 1, True, 1.0, True, [0], [0], [0]),
+                      Scores(accuracy=accuracy, correct=0, wrong=0, ambiguous=0, confused=0, ignorant=0),
+                      FeatureBlock(0, 0, queried, 0), {}, 0.0)
 
 
 def test_seed_study_is_a_paired_one_tailed_t_test():
-    runs = [{"fold": 1, "stages": [{"test": {"accuracy": a}, "features": {"queried": 20.0 + a}},
-                                   {"test": {"accuracy": b}, "features": {"queried": 8.0 + b}}]}
-            for a, b in [(.6, .8), (.62, .75), (.55, .81), (.64, .7)]]
-    study = seed_study(runs, [0, 1, 2, 3])
+    runs = [FoldEntry(1, [stage_tested(a, 20.0 + a), stage_tested(b, 8.0 + b)]) for a, b in [(.6, .8), (.62, .75), (.55, .81), (.64, .7)]]
+    study = seed_study(runs, [0, 1, 2, 3]).to_json()
     d = np.array([.8 - .6, .75 - .62, .81 - .55, .7 - .64])
     t = d.mean() / (d.std(ddof=1) / 2)
     assert study["t"] == pytest.approx(t)
@@ -348,10 +362,10 @@ def test_seed_study_is_a_paired_one_tailed_t_test():
     assert study["expert"]["sd"] == pytest.approx(np.std([.8, .75, .81, .7], ddof=1))
 
     def phase(classes, novice, expert):  # alg. 5.4: stage 0 and one expert stage per class count
-        return [{"classes": classes, "test": {"accuracy": a}, "features": {"queried": q}} for a, q in ((novice, 9.0), (expert, 4.0))]
+        return [stage_tested(a, q, classes) for a, q in ((novice, 9.0), (expert, 4.0))]
 
-    incremental = [{"fold": 1, "stages": phase(2, .95, .97) + phase(3, a, b)} for a, b in [(.6, .8), (.62, .75), (.55, .81)]]
-    study = seed_study(incremental, [0, 1, 2])  # the novices are stage 0 with all three classes, not with two
+    incremental = [FoldEntry(1, phase(2, .95, .97) + phase(3, a, b)) for a, b in [(.6, .8), (.62, .75), (.55, .81)]]
+    study = seed_study(incremental, [0, 1, 2]).to_json()  # the novices are stage 0 with all three classes, not with two
     assert study["novice"]["values"] == [.6, .62, .55] and study["expert"]["values"] == [.8, .75, .81]
     assert study["novice_queried"]["mean"] == 9.0 and study["expert_queried"]["mean"] == 4.0
 

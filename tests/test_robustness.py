@@ -155,8 +155,8 @@ def test_baselines_recognize_copies_and_shifted_views_and_sift_names_both_classe
     classes = ["c0", "c1", "c2"]
     nn, sift = PixelNN().fit(train, train_labels), SiftMatcher().fit(train, train_labels)
     for model in (nn, sift):
-        assert score(model.predict(train), train_labels, classes)["accuracy"] == 1.0
-        assert score(model.predict(shifted), shifted_labels, classes)["correct"] == 1.0
+        assert score(model.predict(train), train_labels, classes).accuracy == 1.0
+        assert score(model.predict(shifted), shifted_labels, classes).correct == 1.0
     pair = torch.cat([train[0], train[4]], dim=1)
     assert sift.predict([pair], n_classes=2) == [frozenset({"c0", "c2"})]
     assert SiftMatcher(two_classes=True).fit(train, train_labels).predict([pair]) == [frozenset({"c0", "c2"})]
@@ -195,7 +195,7 @@ def test_sift_ratio_test_is_per_view_and_skips_views_with_one_descriptor(monkeyp
 def test_score_matches_definitions_4_5_and_4_6_by_hand():
     true = [{"a"}, {"b"}, {"a"}, {"a"}, {"a"}, {"a", "b"}]
     predicted = [{"a"}, set(), {"a", "b"}, {"b"}, {"b", "c"}, {"a"}]
-    block = score([frozenset(p) for p in predicted], [frozenset(t) for t in true], ["a", "b", "c"])
+    block = score([frozenset(p) for p in predicted], [frozenset(t) for t in true], ["a", "b", "c"]).to_json()
     # correct 1, ignorant |true|/n = 1/3, ambiguous 1/(1+1), wrong 0/(1+1), confused 0/(1+2), ignorant 1/2
     assert block["accuracy"] == pytest.approx((1 + 1 / 3 + 1 / 2 + 0 + 0 + 1 / 2) / 6)
     # top-1: a one-class answer is its own top label (a, -, -, b, -, a); no label counts 0
@@ -203,10 +203,10 @@ def test_score_matches_definitions_4_5_and_4_6_by_hand():
                                    "ambiguous": 1 / 6, "wrong": 1 / 6, "confused": 1 / 6})
     # answers best class first (SIFT's ranked): the first is the top label, the set scores def. 4.6 as before
     ranked = [["a"], [], ["b", "a"], ["b"], ["c", "b"], ["a"]]
-    by_rank = score_ranked(ranked, [frozenset(t) for t in true], ["a", "b", "c"])
+    by_rank = score_ranked(ranked, [frozenset(t) for t in true], ["a", "b", "c"]).to_json()
     assert by_rank == pytest.approx({**block, "top1": 2 / 6})  # {b, a}: top b, not a true class of image 3
-    assert score_ranked([["b", "a"]], [frozenset({"a"})], ["a", "b"])["top1"] == 0.0
-    assert score_ranked([["a", "b"]], [frozenset({"a"})], ["a", "b"])["top1"] == 1.0
+    assert score_ranked([["b", "a"]], [frozenset({"a"})], ["a", "b"]).top1 == 0.0
+    assert score_ranked([["a", "b"]], [frozenset({"a"})], ["a", "b"]).top1 == 1.0
     with pytest.raises(InputError, match="top labels"):
         score([frozenset({"a"})], [frozenset({"a"})], ["a"], top=[])
 

@@ -7,6 +7,7 @@ import itertools
 import json
 import math
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from training.data.datasets import load_task, plym_task
 from training.plots import curves_figure, figure_rgb
 from training.recognition.protocol import image_set
 from training.recognition.protocol import test_block as scored  # (a test_ name would be collected)
+from training.recognition.records import Averages, Report
 from training.recognition.report import average, write_markdown
 
 from .test_bayes import pgmpy_query, random_network
@@ -318,7 +320,7 @@ def test_predict_and_score_answer_top_1_as_recognize_many(learned):
     hits = np.mean([r.top in t for r, t in zip(answers, labels)])
     assert learner.score(images, labels, answer=Answer.TOP1) == pytest.approx(hits)
     n = len(set(learner.networks) | {c for t in labels for c in t})
-    assert learner.score(images, labels) == pytest.approx(scored(answers, labels, list(range(n)))["accuracy"])
+    assert learner.score(images, labels) == pytest.approx(scored(answers, labels, list(range(n))).accuracy)
     assert learner.score(images, labels, answer=Answer.TOP1) > learner.score(images, labels)  # ignorant answers get a label
     assert np.array_equal(learner.predict_proba(images), [[r.posteriors[c] for c in learner.classes_] for r in answers])
     for call in (lambda: learner.predict(images, answer="top1"), lambda: learner.score(images, labels, answer="closed")):
@@ -360,7 +362,7 @@ def test_the_reports_top1_is_the_learners_on_its_test_views(plym_run):
     answers = learner.recognize_many(env, range(len(env)))
     final = report["folds"][0]["stages"][-1]["test"]
     assert final["top1"] == pytest.approx(np.mean([r.top in t for r, t in zip(answers, env.labels)]))
-    assert final["accuracy"] == pytest.approx(scored(answers, env.labels, c["classes"])["accuracy"])
+    assert final["accuracy"] == pytest.approx(scored(answers, env.labels, c["classes"]).accuracy)
     assert report["average"]["final"]["test"]["top1"] == final["top1"]
     markdown = (plym_run / "report.md").read_text()
     assert "| acc. | top-1 | cor." in markdown and f"| {final['top1']:.2f}".replace("| 0.", "| .") in markdown
@@ -394,10 +396,10 @@ def test_stages_from_an_older_checkpoint_read_as_not_available(plym_run, tmp_pat
     second["fold"] = 2
     for stage in second["stages"]:
         del stage["test"]["top1"]
-    folds = [mixed["folds"][0], second]
-    assert math.isnan(average(folds, -1)["test"]["top1"]) and average(folds, -1)["test"]["accuracy"] == mixed["folds"][0][
+    report = Report.from_json({**mixed, "folds": [mixed["folds"][0], second]})
+    folds = report.folds
+    assert math.isnan(average(folds, -1).test.top1) and average(folds, -1).test.accuracy == mixed["folds"][0][
         "stages"][-1]["test"]["accuracy"]
-    assert figure_rgb(curves_figure({"folds": folds, "config": mixed["config"]})).shape[2] == 3
-    write_markdown(tmp_path / "mixed.md", {**mixed, "folds": folds, "average": {"stage0": average(folds, 0),
-                                                                                  "final": average(folds, -1)}}, [])
+    assert figure_rgb(curves_figure(report)).shape[2] == 3
+    write_markdown(tmp_path / "mixed.md", replace(report, average=Averages(average(folds, 0), average(folds, -1))), [])
     assert "fold 2 stage 0, fold 2 stage 1" in (tmp_path / "mixed.md").read_text()

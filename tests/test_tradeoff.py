@@ -149,7 +149,7 @@ def test_pixel_peer_stores_side_squared_bytes_per_view_and_knows_copies_at_every
     for side in (4, 8, 16, None):
         nn = PixelNN(side).fit(train, labels)
         assert nn.storage_per_class() == 2 * (64 * 64 if side is None else side * side)  # 2 views per class, a byte a pixel
-        assert score(nn.predict(train), labels, classes)["accuracy"] == 1.0
+        assert score(nn.predict(train), labels, classes).accuracy == 1.0
     reduced = PixelNN(4).fit(train, labels)
     block = torch.nn.functional.avg_pool2d(train[0][None, None], 16)[0, 0]  # INTER_AREA at an integer factor
     assert torch.allclose(reduced.vectors[0], (block * 255).round().reshape(-1), atol=1.0)
@@ -175,8 +175,8 @@ def test_sift_peer_keeps_the_strongest_keypoints_and_counts_a_byte_per_entry():
     # a view with one descriptor cannot pass Lowe's ratio test within the view: one keypoint answers nothing
     assert full.strongest(1).predict(train) == [frozenset()] * len(train)
     across = SiftMatcher(across_classes=True).fit(train, labels, full._found)
-    assert score(across.predict(train), labels, classes)["accuracy"] == 1.0
-    assert score(full.predict(train), labels, classes)["accuracy"] == 1.0
+    assert score(across.predict(train), labels, classes).accuracy == 1.0
+    assert score(full.predict(train), labels, classes).accuracy == 1.0
     one = across.strongest(1)  # the copy's strongest descriptor is at distance 0 in its own view: it votes right
     assert all(one.class_votes(x, q[:1]).argmax() == k // 2 for k, (x, q) in enumerate(zip(train, full._found)))
     assert torch.equal(across.strongest(2).counts, full.strongest(2).counts)
@@ -214,12 +214,12 @@ def test_the_budget_table_takes_each_methods_best_point_within_the_budget():
         return Point(method, f"{method} {spent}", spent, {"clean": 1 - top1}, 1 - top1, 1, {"clean": top1}, top1)
     points = [point("ftorch", 300, 0.6), point("ftorch", 900, 0.8), point("sift", 500, 0.7), point("sift", 3000, 0.95),
               point("pixel_nn", 200, 0.5), point("pixel_nn", 1000, 0.9)]
-    rows = {r["budget"]: r for r in budget_rows(points)}
+    rows = {r.budget: r.to_json() for r in budget_rows(points)}
     assert rows[256]["ftorch"] is None and rows[256]["pixel_nn"]["mean_top1"] == 0.5 and rows[256]["ftorch_leads"] is None
     assert rows[512]["ftorch"]["mean_top1"] == 0.6 and rows[512]["sift"]["mean_top1"] == 0.7 and rows[512]["ftorch_leads"] is False
     assert rows[1024]["ftorch"]["mean_top1"] == 0.8 and rows[1024]["pixel_nn"]["mean_top1"] == 0.9 and not rows[1024]["ftorch_leads"]
     points.append(point("ftorch", 2000, 0.93))
-    rows = {r["budget"]: r for r in budget_rows(points)}
+    rows = {r.budget: r.to_json() for r in budget_rows(points)}
     assert rows[2048]["ftorch_leads"] is True and rows[4096]["ftorch_leads"] is False  # sift .95 at 3000 bytes
     assert rows[2048]["ftorch"]["mean"] == pytest.approx(0.07)  # def. 4.6's accuracy kept beside it
 

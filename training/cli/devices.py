@@ -34,13 +34,13 @@ def start_memory(device: torch.device) -> None:
         torch.cuda.reset_peak_memory_stats(device)
 
 
-def peak_memory(device: torch.device) -> dict:
-    """``{"gpu_memory_mib": peak}``: the GPU memory this process's tensors held at most since
-    :func:`start_memory` (torch's allocator; the CUDA context, some hundred MiB per process, comes on
-    top), so that runs sharing one GPU (``--workers N --device cuda``) can be sized; {} on a CPU."""
+def peak_memory(device: torch.device) -> float | None:
+    """The GPU memory (MiB) this process's tensors held at most since :func:`start_memory` (torch's
+    allocator; the CUDA context, some hundred MiB per process, comes on top), so that runs sharing one
+    GPU (``--workers N --device cuda``) can be sized; None on a CPU."""
     if device.type != "cuda":
-        return {}
-    return {"gpu_memory_mib": round(torch.cuda.max_memory_allocated(device) / 2**20, 1)}
+        return None
+    return round(torch.cuda.max_memory_allocated(device) / 2**20, 1)
 
 
 def described(machine: dict) -> str:

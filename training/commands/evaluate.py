@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ftorch import FeatureSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
+from ftorch.recognition.inference import Outcome
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from training.cli.arguments import at_least
 from training.cli.devices import resolve_device
@@ -16,6 +17,7 @@ from training.cli.outputs import Command, RunFolder, apart
 from training.commands.recognize import task_options
 from training.data.datasets import Task, load_task, reduced
 from training.recognition.protocol import confusion, feature_block, image_set, load_learner, test_block
+from training.recognition.records import ConfusionRow, FeatureBlock, Record, TestBlock
 from training.recognition.report import (
     COLUMNS,
     ambiguity_table,
@@ -80,24 +82,47 @@ def _evaluate(args, device, folder: RunFolder) -> int:
     env = image_set(task, list(range(len(task.images))), FeatureSpace().to(device), not args.quiet)
     recognitions = [replace(r, recognized={str(c) for c in r.recognized}, top=None if r.top is None else str(r.top))
                     for r in learner.recognize_many(env, range(len(env)))]
-    result = {"checkpoint": str(args.learner), "data": str(args.data), "classes": classes, "size": args.size,
-              "test": test_block(recognitions, env.labels, classes), "features": feature_block(learner, recognitions),
-              "confusion": confusion(recognitions, env.labels, classes, networks),
-              "images": [{"image": name, "true": sorted(map(str, t)), "recognized": sorted(map(str, r.recognized)), "top": r.top}
-                         for name, t, r in zip(env.names, env.labels, recognitions)]}
+    result = Evaluation(str(args.learner), str(args.data), classes, args.size, test_block(recognitions, env.labels, classes),
+                        feature_block(learner, recognitions), confusion(recognitions, env.labels, classes, networks),
+                        [Answer(name, sorted(map(str, t)), sorted(map(str, r.recognized)), r.top)
+                         for name, t, r in zip(env.names, env.labels, recognitions)])
     folder.ledger.files(out / "evaluate.json", out / "evaluate.md")
-    write_json(out / "evaluate.json", result)
+    write_json(out / "evaluate.json", result.to_json())
+    test = result.test
     lines = [f"# Evaluation of {args.learner} on {args.data}", "",
-             f"accuracy {result['test']['accuracy']:.2f}; top-1 accuracy {result['test']['top1']:.2f} (each image's one "
-             "label, its \"top\" in evaluate.json); "
-             + ", ".join(f"{k} {v:.2f}" for k, v in result["test"].items() if k not in ("accuracy", "top1")),
-             "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result["confusion"], classes), "",
-             "## Ambiguous recognitions (table 4.4 form)", "", *ambiguity_table(result["confusion"], classes), ""]
+             f"accuracy {test.accuracy:.2f}; top-1 accuracy {test.top1:.2f} (each image's one "
+             "label, its \"top\" in evaluate.json); " + ", ".join(f"{k} {getattr(test, k):.2f}" for k in Outcome),
+             "", COLUMNS, "", "## Confusion (table 4.3 form)", "", *confusion_table(result.confusion, classes), "",
+             "## Ambiguous recognitions (table 4.4 form)", "", *ambiguity_table(result.confusion, classes), ""]
     write_text(out / "evaluate.md", "\n".join(lines))
-    print(f"{len(env)} images: accuracy {result['test']['accuracy']:.2f}, top-1 {result['test']['top1']:.2f}, "
-          f"correct {result['test']['correct']:.2f}; "
+    print(f"{len(env)} images: accuracy {test.accuracy:.2f}, top-1 {test.top1:.2f}, correct {test.correct:.2f}; "
           f"report: {out / 'evaluate.md'}")
     return 0
+
+
+@dataclass
+class Answer(Record):
+    """One image's answer: its true classes, those recognized (def. 4.5) and its top label."""
+
+    image: str
+    true: list[str]
+    recognized: list[str]
+    top: str | None
+
+
+@dataclass
+class Evaluation(Record):
+    """evaluate.json: the learner and images, the test block (def. 4.5, 4.6), feature counts, confusion
+    rows (tables 4.3, 4.4) and every image's answer."""
+
+    checkpoint: str
+    data: str
+    classes: list
+    size: int | None
+    test: TestBlock
+    features: FeatureBlock
+    confusion: dict[str, ConfusionRow]
+    images: list[Answer]
 
 
 def add_parser(commands) -> None:

@@ -6,7 +6,7 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,7 @@ from training.data.datasets import Task, load_task
 from training.plots import curves_figure, figure_rgb, fold_curves_figure, growth_figure
 from training.recognition.pictures import class_files, feature_pictures, save_pictures
 from training.recognition.protocol import Fold, RunConfig, image_set
+from training.recognition.records import FoldEntry, Report
 from training.recognition.report import (
     build_report,
     growth_over_seeds,
@@ -44,8 +45,59 @@ from training.recognition.robustness import split_peers
 SHARED_MEMORY = "/dev/shm"  # where torch's shared CPU tensors live on Linux
 
 
-def shared_records(args, task: Task, jobs: list[dict], device: torch.device) -> dict[tuple, ImageRecords]:
-    """The records of the view sets the jobs train and test on, by their indices, each computed once.
+@dataclass(frozen=True)
+class TaskChoice:
+    """The images a run asked for, as ``load_task`` takes them (the run's first seed: Plym renders by it)."""
+
+    task: str
+    data: str | None
+    classes: int | None
+    views: int | None
+    size: int | None
+    seed: int
+    first_view: int
+
+    @classmethod
+    def of(cls, args) -> "TaskChoice":
+        return cls(args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view)
+
+    def load(self) -> Task:
+        return load_task(self.task, self.data, self.classes, self.views, self.size, self.seed, self.first_view)
+
+
+@dataclass(frozen=True)
+class FoldJob:
+    """One training task of a run, as local worker processes and Ray receive it (picklable): fold
+    ``fold`` of the run ``config`` (its seed the task's, its learner settings built once, by the
+    runner) into ``out``/foldK with TensorBoard in ``logdir``/foldK, every file recorded in the run's
+    ``ledger`` first. ``records``: the view sets' records where computed before (:func:`shared_records`).
+    ``device`` is the --device asked: a Ray node resolves ``auto`` to what it has, and the fold records
+    that device."""
+
+    config: RunConfig
+    fold: int
+    out: Path
+    logdir: Path
+    ledger: Ledger
+    images: TaskChoice
+    device: str
+    progress: bool
+    resume: bool
+    checkpoint_every: float
+    records: dict[tuple, ImageRecords] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FoldResult:
+    """What a training task returns: the fold's report entry (with the machine it trained on) and its
+    figures' paths relative to the run folder."""
+
+    entry: FoldEntry
+    figures: list[str]
+
+
+def shared_records(args, task: Task, folds: list[int], device: torch.device) -> dict[tuple, ImageRecords]:
+    """The records of the view sets the jobs of ``folds`` train and test on, by their indices, each computed once.
 
     Fold 2 trains on fold 1's test views and tests on its training views, and every seed's fold 1
     uses the same views, so computing them per job repeated the same work (in the same batches: the
@@ -57,8 +109,7 @@ def shared_records(args, task: Task, jobs: list[dict], device: torch.device) -> 
     """
     if args.ray is not None or (args.workers > 1 and device.type != "cpu"):
         return {}
-    views = list(dict.fromkeys(tuple(indices) for job in jobs
-                               for indices in task.fold(job["fold"])[1 if args.augment else 0:]))
+    views = list(dict.fromkeys(tuple(indices) for k in folds for indices in task.fold(k)[1 if args.augment else 0:]))
     space = FeatureSpace().to(device)
     free = shutil.disk_usage(SHARED_MEMORY).free if args.workers > 1 and Path(SHARED_MEMORY).is_dir() else None
     # e.g. a container's 64 MB /dev/shm: the workers compute their own, as on Ray; known from the
@@ -101,69 +152,62 @@ def _stages(text: str) -> int | None:
     raise InputError(f"--stages {text!r}: expected a number of expert stages (0 to {STAGES_LIMIT}) or auto")
 
 
-def _train_fold(args, task: Task, k: int, seed: int, space: FeatureSpace, out: Path, logdir: Path,
-                incremental: bool, records: dict[tuple, ImageRecords], ledger: Ledger
-                ) -> tuple[dict, Fold, DistinctiveFeatureLearner, list]:
-    """Run fold ``k`` with ``seed`` into ``out``/fold{k}, TensorBoard into ``logdir``/fold{k}, with
-    the view sets' ``records`` where computed before (:func:`shared_records`), to which it adds
-    those it computes (not augmented training sets, whose copies are drawn per fold); also returns
-    the learned features' pictures. Files are recorded in the run's ``ledger`` before they are written."""
+def _train_fold(job: FoldJob, task: Task, space: FeatureSpace, records: dict[tuple, ImageRecords]
+                ) -> tuple[FoldEntry, Fold, DistinctiveFeatureLearner, list]:
+    """Run the ``job``'s fold, with the view sets' ``records`` where computed before
+    (:func:`shared_records`), to which it adds those it computes (not augmented training sets, whose
+    copies are drawn per fold); also returns the learned features' pictures. Files are recorded in
+    the run's ledger before they are written."""
     from torch.utils.tensorboard import SummaryWriter
 
-    config = run_config(args, task, seed, incremental)
+    config, k, seed = job.config, job.fold, job.config.seed
     train, test = task.fold(k)
-    progress = not args.quiet
-    folder = out / f"fold{k}"
-    ledger.files(folder / "checkpoint.json", folder / "learner.json")
-    ledger.events(logdir / f"fold{k}")
-    with SummaryWriter(str(logdir / f"fold{k}")) as writer:
-        fold = Fold(k, image_set(task, train, space, progress, args.augment, seed, k, records.get(tuple(train))),
-                    image_set(task, test, space, progress, records=records.get(tuple(test))), config,
-                    folder, task.classes(), progress, writer, incremental)
+    folder = job.out / f"fold{k}"
+    job.ledger.files(folder / "checkpoint.json", folder / "learner.json")
+    job.ledger.events(job.logdir / f"fold{k}")
+    with SummaryWriter(str(job.logdir / f"fold{k}")) as writer:
+        fold = Fold(k, image_set(task, train, space, job.progress, config.augment, seed, k, records.get(tuple(train))),
+                    image_set(task, test, space, job.progress, records=records.get(tuple(test))), config,
+                    folder, task.classes(), job.progress, writer, config.incremental)
         records.setdefault(tuple(test), fold.test.all_records)
-        if not args.augment:
+        if not config.augment:
             records.setdefault(tuple(train), fold.train.all_records)
-        entry, learner = fold.run(args.max_cycles, _stages(args.stages), resume=args.resume,
-                                  checkpoint_every=args.checkpoint_every, before_cycle=share_idle_cores)
+        entry, learner = fold.run(config.max_cycles, _stages(config.stages), resume=job.resume,
+                                  checkpoint_every=job.checkpoint_every, before_cycle=share_idle_cores)
         pictures = feature_pictures(learner, fold.train, f"{task.name}, seed {seed}, fold {k}", len(train))
-        if args.augment:
+        if config.augment:
             pictures.append(("augmented", augmented_overview(fold.train, len(train), f"{task.name}, seed {seed}, fold {k}")))
         if not fold.finished_before:  # a resumed fold that had ended logged its results then
             log_run(writer, config, entry, pictures)
     return entry, fold, learner, pictures
 
 
-def run_config(args, task: Task, seed: int, incremental: bool) -> RunConfig:
-    """The settings a run records: what ran (the task's classes, its views per class where all classes
-    have as many, else None: all of each), not only what was asked."""
+def run_config(args, task: Task, settings: LearnerSettings, device: torch.device, incremental: bool) -> RunConfig:
+    """The settings a run records (its first seed's): what ran (the task's classes, its views per class
+    where all classes have as many, else None: all of each), not only what was asked."""
     counts = set(task.views_per_class().values())
     return RunConfig(task.name, str(Path(args.data).resolve()) if args.data else None, task.classes(),
                      counts.pop() if len(counts) == 1 else None,
-                     args.first_view, 64 if args.size is None and task.name == "plym" else args.size, seed,
-                     learner_settings(args),
-                     device=str(resolve_device(args.device)), stages=args.stages, max_cycles=args.max_cycles,
+                     args.first_view, 64 if args.size is None and task.name == "plym" else args.size, args.seed, settings,
+                     device=str(device), stages=args.stages, max_cycles=args.max_cycles,
                      augment=args.augment, dynamic=args.dynamic, incremental=incremental, images=task.fingerprint)
 
 
-def log_run(writer, config: RunConfig, entry: dict, pictures: list[tuple[str, np.ndarray]]) -> None:
+def log_run(writer, config: RunConfig, entry: FoldEntry, pictures: list[tuple[str, np.ndarray]]) -> None:
     """Hyper-parameters with the final results (add_hparams, in the fold's own run), the learned
     features as images (figure 5.2) and the fold's stage curves (figure 5.1, ``figures/curves``),
     all at the final stage."""
-    final = entry["stages"][-1]
+    final = entry.stages[-1]
+    step = final.stage.step
     hparams = {k: v for k, v in config.to_dict().items() if isinstance(v, (int, float, str, bool))}
-    metrics = {"hparam/accuracy": final["test"]["accuracy"], "hparam/correct": final["test"]["correct"],
-               **({"hparam/top1": final["test"]["top1"]} if "top1" in final["test"] else {}),
-               "hparam/features": final["features"]["bn"], "hparam/queried": final["features"]["queried"],
-               "hparam/stages": len(entry["stages"])}
-    writer.add_hparams(hparams, metrics, run_name=".", global_step=final["step"])
+    metrics = {"hparam/accuracy": final.test.accuracy, "hparam/correct": final.test.correct,
+               **({"hparam/top1": final.test.top1} if final.test.top1 is not None else {}),
+               "hparam/features": final.features.bn, "hparam/queried": final.features.queried,
+               "hparam/stages": len(entry.stages)}
+    writer.add_hparams(hparams, metrics, run_name=".", global_step=step)
     for name, picture in pictures:
-        writer.add_image(f"features/{name}", picture, final["step"], dataformats="HWC")
-    writer.add_figure("figures/curves", fold_curves_figure(entry, config.to_dict()), final["step"])
-
-
-def _task_key(args) -> tuple:
-    """The load_task arguments of a run, in load_task's order."""
-    return args.task, args.data, args.classes, args.views, args.size, args.seed, args.first_view
+        writer.add_image(f"features/{name}", picture, step, dataformats="HWC")
+    writer.add_figure("figures/curves", fold_curves_figure(entry, config.to_dict()), step)
 
 
 class LoadedTask:
@@ -184,40 +228,36 @@ class LoadedTask:
     def clear(self) -> None:
         self._key, self._task, self.records = None, None, {}
 
-    def task(self, args, device: torch.device) -> Task:
+    def task(self, images: TaskChoice, device: torch.device) -> Task:
         """The run's data set, loaded once per run and device; the records kept only for the same run."""
-        key = (_task_key(args), str(device))
+        key = (images, str(device))
         if key != self._key:
             self.clear()
-            self._key, self._task = key, load_task(*key[0])
+            self._key, self._task = key, images.load()
         return self._task
 
 
 LOADED = LoadedTask()
 
 
-def fold_task(job: dict) -> dict:
-    """One training task: fold ``job['fold']`` with ``job['seed']`` into ``job['out']``/foldK (pictures,
-    class networks as BIF, learner, checkpoint) and TensorBoard into ``job['logdir']``/foldK, each
-    file recorded in the run's ``job['ledger']``. ``job['records']``: the view sets' records where
-    computed before (:func:`shared_records`); where none are, those this process computed for an
-    earlier task (:data:`LOADED`).
+def fold_task(job: FoldJob) -> FoldResult:
+    """One training task: the ``job``'s fold (pictures, class networks as BIF, learner, checkpoint, TensorBoard),
+    with the view sets' records computed before (:func:`shared_records`), or where none are, those
+    this process computed for an earlier task (:data:`LOADED`).
     Returns the fold's report entry, with the machine it trained on (a Ray node may differ from the
     runner's), and its figures; picklable, for local processes and Ray."""
-    args = argparse.Namespace(**job["args"])
-    device = resolve_device(args.device)
+    device = resolve_device(job.device)
     start_memory(device)
-    task = LOADED.task(args, device)
+    task = LOADED.task(job.images, device)
     space = FeatureSpace().to(device)
-    out, k, ledger = Path(job["out"]), job["fold"], job["ledger"]
-    entry, fold, learner, pictures = _train_fold(args, task, k, job["seed"], space, out, Path(job["logdir"]),
-                                                 job["incremental"], job.get("records") or LOADED.records, ledger)
-    figures = [str(p.relative_to(out)) for p in save_pictures(pictures, fold.folder, ledger)]
+    job = replace(job, config=replace(job.config, device=str(device)))
+    entry, fold, learner, pictures = _train_fold(job, task, space, job.records or LOADED.records)
+    figures = [str(p.relative_to(job.out)) for p in save_pictures(pictures, fold.folder, job.ledger)]
     bif = {label: fold.folder / "networks" / class_files(label)[1] for label in learner.networks}
-    ledger.files(*bif.values())
+    job.ledger.files(*bif.values())
     for label, net in learner.networks.items():
         write_text(bif[label], net.to_bif())
-    return {"entry": {**entry, "machine": machine(device), **peak_memory(device)}, "figures": figures}
+    return FoldResult(replace(entry, machine=machine(device), gpu_memory_mib=peak_memory(device)), figures)
 
 
 def check_names(classes: list, out: Path) -> None:
@@ -258,7 +298,7 @@ def recognize_command(args, incremental: bool = False) -> int:
     if args.dynamic and not args.augment:
         raise InputError("--dynamic draws each cycle's training views from the copies of --augment N: give N >= 1")
     check_seeds(args)
-    learner_settings(args)  # refuses bad parameters early
+    settings = learner_settings(args)  # refuses bad parameters early
     start = time.perf_counter()
     out = Path(args.out or f"runs/{args.task}{'-inc' if incremental else ''}")
     apart({"--out": out, "--logdir": args.logdir}, {"--data": args.data})
@@ -268,81 +308,82 @@ def recognize_command(args, incremental: bool = False) -> int:
         reach_ray(args.ray)
         torch.manual_seed(args.seed)
         LOADED.clear()  # each command loads its data afresh
-        task = LOADED.task(args, device)
+        task = LOADED.task(TaskChoice.of(args), device)
         check_names(task.classes(), out)
         check_inputs(task, args.folds, args.augment, device, 1 if args.ray else min(args.workers, args.folds + args.seeds - 1))
         folder.clear()  # the inputs are good: only now is an old run replaced
-        return _recognize(args, incremental, device, task, folder, start)
+        return _recognize(args, run_config(args, task, settings, device, incremental), device, task, folder, start)
 
 
 def incremental_command(args) -> int:
     return recognize_command(args, incremental=True)
 
 
-def _recognize(args, incremental: bool, device: torch.device, task: Task, folder: RunFolder, start: float) -> int:
+def _recognize(args, config: RunConfig, device: torch.device, task: Task, folder: RunFolder, start: float) -> int:
     """The body of :func:`recognize_command` once the run folder is held and the inputs checked."""
     out, logdir, ledger = folder.out, folder.logdir, folder.ledger
     parallel = args.workers > 1 or args.ray is not None
-    settings = {k: v for k, v in vars(args).items() if k not in ("run", "checkpoints")}
-    settings["quiet"] = args.quiet or parallel  # one progress bar over the tasks instead of one per fold
-    jobs = [{"args": settings, "fold": k, "seed": s, "out": str(o), "logdir": str(t), "incremental": incremental,
-             "ledger": ledger} for s, o, t in run_folders(args, out, logdir) for k in range(1, args.folds + 1 if s == args.seed else 2)]
-    names = [f"fold {j['fold']} seed {j['seed']}" for j in jobs]
-    records = shared_records(args, task, jobs, device)
-    for job in jobs:
-        job["records"] = records
-    results = run_jobs(fold_task, jobs, names, args, out, "tasks")
-    folds = [r["entry"] for r in results[: args.folds]]
-    figures = [f for r in results[: args.folds] for f in r["figures"]]
+    images = TaskChoice.of(args)
+    jobs = [FoldJob(replace(config, seed=s), k, o, t, ledger, images, args.device,
+                    not (args.quiet or parallel),  # one progress bar over the tasks instead of one per fold
+                    args.resume, args.checkpoint_every)
+            for s, o, t in run_folders(args, out, logdir) for k in range(1, args.folds + 1 if s == args.seed else 2)]
+    names = [f"fold {j.fold} seed {j.config.seed}" for j in jobs]
+    records = shared_records(args, task, [job.fold for job in jobs], device)
+    jobs = [replace(job, records=records) for job in jobs]
+    results: list[FoldResult] = run_jobs(fold_task, jobs, names, args, out, "tasks")
+    folds = [r.entry for r in results[: args.folds]]
+    figures = [f for r in results[: args.folds] for f in r.figures]
     for k, entry in enumerate(folds, 1):
-        for stage in entry["stages"]:
-            taught = f", {stage['classes']} classes" if incremental else ""
-            print(f"fold {k} stage {stage['stage']}{taught} "
-                  f"(t_KSD {stage['t_ksd']:.3f}{', met' if stage['target_met'] else ''}): "
-                  f"accuracy {stage['test']['accuracy']:.2f}, top-1 {shown(stage['test'].get('top1'))}, "
-                  f"correct {stage['test']['correct']:.2f}, "
-                  f"{stage['features']['bn']} features in the networks, {stage['cycles']} cycles")
+        for e in entry.stages:
+            s = e.stage
+            taught = f", {s.classes} classes" if config.incremental else ""
+            print(f"fold {k} stage {s.stage}{taught} (t_KSD {s.t_ksd:.3f}{', met' if s.target_met else ''}): "
+                  f"accuracy {e.test.accuracy:.2f}, top-1 {shown(e.test.top1)}, correct {e.test.correct:.2f}, "
+                  f"{e.features.bn} features in the networks, {s.cycles} cycles")
     seeds = None
     if args.seeds > 1:
-        runs = [folds[0]] + [r["entry"] for r in results[args.folds:]]
+        runs = [folds[0]] + [r.entry for r in results[args.folds:]]
         seeds = seed_study(runs, list(range(args.seed, args.seed + args.seeds)))
-        if incremental and all(len(r["added"]) > 1 for r in runs):
-            seeds["growth"] = growth_over_seeds(runs, seeds["seeds"])
+        if config.incremental and all(len(r.added) > 1 for r in runs):
+            seeds.growth = growth_over_seeds(runs, seeds.seeds)
     seconds = time.perf_counter() - start
-    report = build_report(run_config(args, task, args.seed, incremental).to_dict(), str(device), machine(device), seconds,
-                          folds, seeds)
+    report = build_report(config, str(device), machine(device), seconds, folds, seeds)
     if device.type == "cuda":  # what each task (one process's at a time) held on the GPU it shared
-        report["gpu_memory_mib"] = {name: r["entry"]["gpu_memory_mib"] for name, r in zip(names, results)}
+        report.gpu_memory_mib = {name: r.entry.gpu_memory_mib for name, r in zip(names, results)}
     if args.peers:
-        report["peers"] = split_peers(task, list(range(1, args.folds + 1)))
-    grew = report.get("growth", {}).get("exponent") is not None
+        report.peers = split_peers(task, list(range(1, args.folds + 1)))
+    grew = report.growth is not None and report.growth.exponent is not None
     pictures = {"curves.png": curves_figure} | ({"growth.png": growth_figure} if grew else {})
     ledger.files(*(out / name for name in ("report.json", "report.md", *pictures)))
-    write_json(out / "report.json", report)
+    write_json(out / "report.json", report.to_json())
     for name, figure in pictures.items():
         save_rgb(out / name, figure_rgb(figure(report)))
         figures.append(name)
     write_markdown(out / "report.md", report, figures)
-    avg = report["average"]["final"]
-    note = top1_note([r["entry"] for r in results], names)  # every seed's folds: a figure of any may lack it
-    if note:
-        print(f"note: {note}", file=sys.stderr)
-    print(f"average: accuracy {avg['test']['accuracy']:.2f}, top-1 {shown(avg['test'].get('top1'))}, "
-          f"correct {avg['test']['correct']:.2f}, "
-          f"ignorant {avg['test']['ignorant']:.2f}, {avg['features']['bn']:.1f} features; {seconds:.1f} s")
-    if seeds:
-        print(f"{args.seeds} seeds, fold 1: novice accuracy {seeds['novice']['mean']:.2f} +- {seeds['novice']['sd']:.2f}, "
-              f"expert {seeds['expert']['mean']:.2f} +- {seeds['expert']['sd']:.2f}, "
-              f"one-tailed paired t-test p = {shown(seeds['p'], '.2g')}; top-1 novice {shown(seeds['novice_top1']['mean'])}, "
-              f"expert {shown(seeds['expert_top1']['mean'])}")
-        if seeds.get("growth", {}).get("mean") is not None:
-            g = seeds["growth"]
-            print(f"{args.seeds} seeds, fold 1: features sampled ~ classes^b, b = {g['mean']:.2f} "
-                  f"(95% interval over seeds {g['interval'][0]:.2f} to {g['interval'][1]:.2f})")
+    _summary(report, [r.entry for r in results], names, args.seeds)
     print(f"report: {out / 'report.md'} and {out / 'report.json'}; TensorBoard: tensorboard --logdir {logdir}")
     return 0
 
 
+def _summary(report: Report, entries: list[FoldEntry], names: list[str], n_seeds: int) -> None:
+    """The run's averages printed, and the seed study's figures where there is one; a note on stderr
+    where a stage of any seed's folds lacks top-1 accuracy."""
+    avg, seeds = report.average.final, report.seeds
+    note = top1_note(entries, names)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"average: accuracy {avg.test.accuracy:.2f}, top-1 {shown(avg.test.top1)}, correct {avg.test.correct:.2f}, "
+          f"ignorant {avg.test.ignorant:.2f}, {avg.features.bn:.1f} features; {report.seconds:.1f} s")
+    if seeds:
+        print(f"{n_seeds} seeds, fold 1: novice accuracy {seeds.novice.mean:.2f} +- {seeds.novice.sd:.2f}, "
+              f"expert {seeds.expert.mean:.2f} +- {seeds.expert.sd:.2f}, "
+              f"one-tailed paired t-test p = {shown(seeds.p, '.2g')}; top-1 novice {shown(seeds.novice_top1.mean)}, "
+              f"expert {shown(seeds.expert_top1.mean)}")
+        g = seeds.growth
+        if g is not None and g.mean is not None:
+            print(f"{n_seeds} seeds, fold 1: features sampled ~ classes^b, b = {g.mean:.2f} "
+                  f"(95% interval over seeds {g.interval[0]:.2f} to {g.interval[1]:.2f})")
 def task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: str) -> None:
     """--task, --data, --classes, --views, --first-view, --device, --quiet: which images (recognize, evaluate)."""
     p.add_argument("--task", choices=tasks, default=default, help=f"data set (default {default})")
@@ -355,27 +396,38 @@ def task_options(p: argparse.ArgumentParser, tasks: tuple[str, ...], default: st
     device_options(p)
 
 
+@dataclass(frozen=True)
+class OptionText:
+    """How a settings field describes itself on the command line (``ftorch.settings.option``'s metadata)."""
+
+    help: str
+    metavar: str | None = None
+    at_least: int | None = None
+    at_most: int | None = None
+    what: str | None = None
+
+
 def _learner_options(p: argparse.ArgumentParser) -> None:
     """One option per learner setting, as :class:`LearnerSettings` describes it (its defaults: the measured best)."""
     for f in fields(LearnerSettings):
-        flag, meta, default = "--" + f.name.replace("_", "-"), f.metadata, f.default
+        flag, text, default = "--" + f.name.replace("_", "-"), OptionText(**f.metadata), f.default
         if isinstance(default, bool):
-            p.add_argument(flag, action="store_true", help=f"{meta['help']} (default off)")
+            p.add_argument(flag, action="store_true", help=f"{text.help} (default off)")
         elif isinstance(default, int):
-            p.add_argument(flag, type=at_least(meta["at_least"], meta["what"], meta["at_most"]), default=default,
-                           metavar=meta["metavar"], help=f"{meta['help']} (default {default})")
+            p.add_argument(flag, type=at_least(text.at_least, text.what, text.at_most), default=default,
+                           metavar=text.metavar, help=f"{text.help} (default {default})")
         elif f.name == "primitives":
-            p.add_argument(flag, type=primitives, default=",".join(default), metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {','.join(default)})")
+            p.add_argument(flag, type=primitives, default=",".join(default), metavar=text.metavar,
+                           help=f"{text.help} (default {','.join(default)})")
         elif f.name == "regions":
-            p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {','.join(default) or 'none'})")
+            p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=text.metavar,
+                           help=f"{text.help} (default {','.join(default) or 'none'})")
         elif f.name == "evidence":
             p.add_argument(flag, choices=[str(e) for e in Evidence], default=str(default),
-                           help=f"{meta['help']} (default {default})")
+                           help=f"{text.help} (default {default})")
         else:
-            p.add_argument(flag, type=number, default=default, metavar=meta["metavar"],
-                           help=f"{meta['help']} (default {default:g})")
+            p.add_argument(flag, type=number, default=default, metavar=text.metavar,
+                           help=f"{text.help} (default {default:g})")
 
 
 def learner_settings(args) -> LearnerSettings:

@@ -17,13 +17,13 @@ from training.cli.arguments import number, seed
 from training.cli.devices import described, machine, resolve_device
 from training.cli.jobs import device_options
 from training.cli.outputs import Command, Ledger, RunFolder, apart, locked, writable_folder
-from training.data.datasets import load_task
 from training.plots import feature_types_figure, figure_rgb
-from training.recognition.protocol import same_images
+from training.recognition.protocol import RecordedTask, same_images
+from training.recognition.records import Report
 from training.recognition.report import (
     write_json,
 )
-from training.recognition.robustness import SETS, TABLE_CELLS, feature_tables, fold_robustness, perturbations
+from training.recognition.robustness import SETS, TABLE_CELLS, Robustness, feature_tables, fold_robustness, perturbations
 from training.recognition.robustness import average as average_robustness
 from training.recognition.robustness import table as robustness_table
 
@@ -54,7 +54,7 @@ def robustness_command(args) -> int:
 def _recorded_data(run: Path) -> str | None:
     """The image folder the run's report records (None where it records none, or is no report)."""
     try:
-        data = json.loads((run / "report.json").read_text())["config"]["data"]
+        data = json.loads((run / "report.json").read_text())["config"]["data"]  # before the run is checked: only this
     except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return None
     return data if isinstance(data, str) else None
@@ -63,18 +63,16 @@ def _recorded_data(run: Path) -> str | None:
 def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger) -> int:
     """The body of :func:`robustness_command` once its output folder is held."""
     try:
-        report = json.loads((run / "report.json").read_text())
-        config = report["config"]
-        data = args.data or config["data"]
-        recorded = (config["task"], data, len(config["classes"]), config["views"], config["size"], config["seed"],
-                    config["first_view"])
-        folds = [f["fold"] for f in report["folds"]]
+        report = Report.from_json(json.loads((run / "report.json").read_text()))
+        recorded = RecordedTask.from_json(report.config)
+        data = args.data or recorded.data
+        folds = [f.fold for f in report.folds]
         if not folds:
             raise ValueError("no folds")
-    except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError) as err:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError, RecursionError) as err:
         raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
-    task = load_task(*recorded)  # outside the try: its own refusals (a missing --data) are one line already
-    same_images(task, config, f"--run {run}", data)
+    task = recorded.load(data)  # outside the try: its own refusals (a missing --data) are one line already
+    same_images(task, recorded.images, f"--run {run}", data)
     start = time.perf_counter()
     space = FeatureSpace().to(device)
     answering = {"evidence": args.evidence} if args.evidence != "learned" else {}
@@ -84,18 +82,16 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
     for k in folds:
         learner = DistinctiveFeatureLearner.load(run / f"fold{k}" / "learner.json").set_params(**answering)
         results.append(fold_robustness(task, k, learner, kinds, args.seed, space, args.peers, out, not args.quiet, ledger))
-    result = {"run": str(run), "data": str(data), "seed": args.seed, "sets": kinds,
-              "evidence": args.evidence, "test_information": args.test_information, "learner": config, "folds": results,
-              "average": average_robustness(results), "machine": machine(device),
-              "seconds": time.perf_counter() - start}
-    types = result["average"].get("types")
+    result = Robustness(str(run), str(data), args.seed, kinds, args.evidence, args.test_information, report.config, results,
+                        average_robustness(results), machine(device), time.perf_counter() - start)
+    types = result.average.types
     ledger.files(out / "robustness.json", out / "robustness.md", *([out / "features.png"] if types else []))
-    write_json(out / "robustness.json", result)
+    write_json(out / "robustness.json", result.to_json())
     if types:
         save_rgb(out / "features.png", figure_rgb(feature_types_figure(types, f"{run}: which features survive, "
                                                                               f"perturbation seed {args.seed}")))
     lines = [f"# Robustness of {run}", "", f"{len(folds)} folds, perturbation seed {args.seed}, evidence {args.evidence}, "
-             f"{described(result['machine'])}, {result['seconds']:.1f} s. Each method's cells: {TABLE_CELLS}, "
+             f"{described(result.machine)}, {result.seconds:.1f} s. Each method's cells: {TABLE_CELLS}, "
              "mean over folds. Ours is set against the peers on top-1 accuracy (one label per image, as each peer "
              "answers); def. 4.6's accuracy is the thesis's figure for its open-world answer. \"flipped\": the share of "
              "(network node, test view) whose state differs from the clean view's.", "", *robustness_table(result), "",

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -15,6 +16,7 @@ from training.cli.devices import resolve_device
 from training.cli.jobs import device_options
 from training.cli.outputs import Command, RunFolder
 from training.data.builtin import builtin_scene
+from training.recognition.records import Record
 
 
 def salient_command(args) -> int:
@@ -43,21 +45,34 @@ def _draw(records, names: list[Path], images: list, folder: RunFolder) -> None:
     summary = []
     stems = [name.stem for name in names]
     clash = len(set(stems)) < len(stems)  # a/x.png and b/x.png: number every figure, so none is lost
-    for n, (name, image) in enumerate(zip(names, images)):
+    for n, (name, image, edgels, blobs, corners) in enumerate(zip(names, images, *(counts[k] for k in SALIENT))):
         stem = f"{n + 1}-{stems[n]}" if clash else stems[n]
         target = out / f"{stem}_salient.png"
-        row = {"image": str(name), "edgels": counts["edgels"][n], "blobs": counts["blobs"][n],
-               "corners": counts["corners"][n], "figure": str(target)}
-        row["texels"] = row["blobs"] + row["corners"]
+        row = SalientCounts(str(name), edgels, blobs, corners, str(target), blobs + corners)
         folder.ledger.files(target)
         save_rgb(target, titled(draw_salient(records, n, image),
-                                f"{name.name}: {row['edgels']} edgels (left: segments of 2 sigma); {row['blobs']} blobs "
-                                f"(circles) and {row['corners']} corners (squares) of radius sigma"))
-        summary.append(row)
-        print(f"{name}: {row['edgels']} edgels, {row['texels']} texels "
-              f"({row['blobs']} blobs, {row['corners']} corners) -> {target}")
+                                f"{name.name}: {row.edgels} edgels (left: segments of 2 sigma); {row.blobs} blobs "
+                                f"(circles) and {row.corners} corners (squares) of radius sigma"))
+        summary.append(row.to_json())
+        print(f"{name}: {row.edgels} edgels, {row.texels} texels ({row.blobs} blobs, {row.corners} corners) -> {target}")
     folder.ledger.files(out / "salient.json")
     write_text(out / "salient.json", json.dumps(summary, indent=2) + "\n")
+
+
+SALIENT = ("edgels", "blobs", "corners")  # the kinds ImageRecords.counts counts
+
+
+@dataclass
+class SalientCounts(Record):
+    """One image's row of salient.json: its salient edgels, blobs and corners (figure 3.9), its figure,
+    and its texels (blobs and corners)."""
+
+    image: str
+    edgels: int
+    blobs: int
+    corners: int
+    figure: str
+    texels: int
 
 
 def add_parser(commands) -> None:

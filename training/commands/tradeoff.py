@@ -39,16 +39,16 @@ def tradeoff_command(args) -> int:
         folder = held.enter_context(RunFolder(out, out / "tensorboard", False, args.overwrite, Command.TRADEOFF, can_resume=False))
         result = tradeoff(runs, kinds, args.seed, FeatureSpace().to(device), args.data, not args.quiet)
         folder.clear()
-        result["machine"] = machine(device)
-        heading = (f"{result['task']}, {len(result['classes'])} classes, {len(runs)} run(s), perturbation seed {args.seed}: "
+        result.machine = machine(device)
+        heading = (f"{result.task}, {len(result.classes)} classes, {len(runs)} run(s), perturbation seed {args.seed}: "
                    "top-1 accuracy against bytes stored per class")
         folder.ledger.files(out / "tradeoff.json", out / "tradeoff.md", out / "front.png")
         folder.ledger.events(out / "tensorboard")
-        write_json(out / "tradeoff.json", result)
+        write_json(out / "tradeoff.json", result.to_json())
         front = figure_rgb(tradeoff_figure(result, heading))  # drawn once, for the PNG and TensorBoard
         save_rgb(out / "front.png", front)
-        lines = [f"# Accuracy per byte: {result['task']}", "", f"Runs {', '.join(result['runs'])}; sets {', '.join(kinds)}; "
-                 f"{described(result['machine'])}, {result['seconds']:.1f} s. Top-1 accuracy (one label per image: ftorch's "
+        lines = [f"# Accuracy per byte: {result.task}", "", f"Runs {', '.join(result.runs)}; sets {', '.join(kinds)}; "
+                 f"{described(result.machine)}, {result.seconds:.1f} s. Top-1 accuracy (one label per image: ftorch's "
                  "top label, each peer's best class), on which the methods are compared, and accuracy (def. 4.6, "
                  "ftorch's open-world answer as the thesis scores it), each seed weighted equally; bytes: what each "
                  "method stores per class (training/recognition/tradeoff.py).", "",

@@ -27,12 +27,13 @@ from ftorch.images import to_uint8
 from ftorch.recognition.inference import Recognition
 
 from .protocol import test_block
+from .records import TestBlock
 
 DESCRIPTOR_BYTES = 128  # 128 entries, each a whole number below 256 (OpenCV saturates them to uchar)
 CHUNK = 1 << 22  # squared distances computed at once in SiftMatcher.good_matches
 
 
-def score(predicted: list[frozenset], true: list[frozenset], classes: list, top: list | None = None) -> dict:
+def score(predicted: list[frozenset], true: list[frozenset], classes: list, top: list | None = None) -> TestBlock:
     """Accuracy (def. 4.6), top-1 accuracy and outcome proportions (def. 4.5), computed by
     ``protocol.test_block`` so that baselines and learner are scored by the same code. ``top``: each
     image's one label (None: none); default, the class of a one-class answer, else None."""
@@ -45,7 +46,7 @@ def score(predicted: list[frozenset], true: list[frozenset], classes: list, top:
     return test_block([Recognition({}, set(p), top=t) for p, t in zip(predicted, top)], [frozenset(t) for t in true], classes)
 
 
-def score_ranked(answers: list[list], true: list[frozenset], classes: list) -> dict:
+def score_ranked(answers: list[list], true: list[frozenset], classes: list) -> TestBlock:
     """:func:`score` of answers given best class first (:meth:`SiftMatcher.ranked`): the set, and the first as top label."""
     return score([frozenset(a) for a in answers], true, classes, [a[0] if a else None for a in answers])
 

@@ -16,6 +16,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -33,30 +34,31 @@ from ftorch.recognition.state import KIND as LEARNER_KIND
 from ftorch.space.features import unpack_features
 from ftorch.space.record import FeatureSpace, ImageRecords
 from training.data.augment import augment
-from training.data.datasets import Task
+from training.data.datasets import Task, load_task
+
+from .records import OPTIONAL, ConfusionRow, FeatureBlock, FoldEntry, Record, StageEntry, TestBlock
 
 FOLD_KIND = "fold"
 
 
-def test_block(recognitions: list[Recognition], labels: list[frozenset], classes: list) -> dict:
+def test_block(recognitions: list[Recognition], labels: list[frozenset], classes: list) -> TestBlock:
     """Accuracy (def. 4.6), top-1 accuracy beside it (the share of images whose top label,
     :attr:`Recognition.top`, is one of their true classes) and the proportions of the five outcomes
     (def. 4.5) over a test set."""
     outcomes = Counter(outcome(r.recognized, t) for r, t in zip(recognitions, labels))
     n = max(len(recognitions), 1)
-    block = {"accuracy": float(np.mean([accuracy(r.recognized, t, len(classes)) for r, t in zip(recognitions, labels)])),
-             "top1": float(np.mean([top1_accuracy(r.top, t) for r, t in zip(recognitions, labels)]))}
-    block.update({str(k): outcomes[k] / n for k in Outcome})
-    return block
+    return TestBlock(accuracy=float(np.mean([accuracy(r.recognized, t, len(classes)) for r, t in zip(recognitions, labels)])),
+                     top1=float(np.mean([top1_accuracy(r.top, t) for r, t in zip(recognitions, labels)])),
+                     **{str(k): outcomes[k] / n for k in Outcome})
 
 
-def confusion(recognitions: list[Recognition], labels: list[frozenset], classes: list, networks: dict) -> dict:
+def confusion(recognitions: list[Recognition], labels: list[frozenset], classes: list, networks: dict) -> dict[Any, ConfusionRow]:
     """Tables 4.3 and 4.4 for single-class images: per true class, recognized-as counts for correct
     and wrong results, the ambiguous / confused / ignorant counts, the network size, and the
     false-positive classes of ambiguous results."""
-    rows = {c: {"as": dict.fromkeys(classes, 0), "ambiguous": 0, "confused": 0, "ignorant": 0,
-                "features": len(networks[c].features) if c in networks else 0,
-                "ambiguous_with": dict.fromkeys(classes, 0)} for c in classes}
+    rows = {c: ConfusionRow(recognized_as=dict.fromkeys(classes, 0), ambiguous=0, confused=0, ignorant=0,
+                            features=len(networks[c].features) if c in networks else 0,
+                            ambiguous_with=dict.fromkeys(classes, 0)) for c in classes}
     for rec, true in zip(recognitions, labels):
         if len(true) != 1:
             continue
@@ -64,26 +66,33 @@ def confusion(recognitions: list[Recognition], labels: list[frozenset], classes:
         kind = outcome(rec.recognized, true)
         if kind in (Outcome.CORRECT, Outcome.WRONG):
             for r in rec.recognized:
-                rows[c]["as"][r] += 1
-        else:
-            rows[c][str(kind)] += 1
+                rows[c].recognized_as[r] += 1
+        else:  # the other outcomes' names are the row's counts
+            setattr(rows[c], str(kind), getattr(rows[c], str(kind)) + 1)
         if kind is Outcome.AMBIGUOUS:
             for r in rec.recognized - true:
-                rows[c]["ambiguous_with"][r] += 1
+                rows[c].ambiguous_with[r] += 1
     return rows
 
 
-def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recognition]) -> dict:
+def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recognition]) -> FeatureBlock:
     """Table 4.2's feature columns: nodes in all networks, different features, mean queried, sampled."""
     nodes = [f for net in learner.networks.values() for f in net.features]
-    return {"bn": len(nodes), "different": len(set(nodes)),
-            "queried": float(np.mean([len(r.queried) for r in recognitions])) if recognitions else 0.0,
-            "sampled": learner.sampled}
+    return FeatureBlock(len(nodes), len(set(nodes)),
+                        float(np.mean([len(r.queried) for r in recognitions])) if recognitions else 0.0, learner.sampled)
 
 
 # what a run written before an option existed ran with (the option's value then, not its default now)
 BEFORE = {"leak": 0.0, "primitives": "texel,edgel", "calibrate": False, "dynamic": False, "regions": "", "contrast": 1,
           "texture_parts": False}
+
+
+def with_older_options(stored: dict, base: dict) -> dict:
+    """A config as a run wrote it (RunConfig.to_dict), with what a run written before some options
+    existed lacks: ``base`` (e.g. today's defaults), overridden by the options' values then (``BEFORE``).
+    The one place older configs are filled in, for resume and tradeoff alike (to be replaced by a
+    versioned schema migration)."""
+    return {**base, **BEFORE, **stored}
 
 
 @dataclass(frozen=True)
@@ -128,11 +137,30 @@ class RunConfig:
         return DistinctiveFeatureLearner(self.learner, seed=self.fold_seed(fold), device=self.device)
 
 
-def same_images(task: Task, config: dict, run: str, data) -> None:
-    """InputError where ``task``'s views are not the images the run ``config`` recorded
-    (:attr:`RunConfig.images`): e.g. a copy of the data with the same names and mirrored images;
+@dataclass(frozen=True)
+class RecordedTask(Record):
+    """What a run's config (:meth:`RunConfig.to_dict`) records of the task it learned: enough to load
+    it again (:meth:`load`) and check the images (:func:`same_images`; ``images`` None in a run
+    written before runs recorded them)."""
+
+    task: str
+    data: str | None
+    classes: list
+    views: int | None
+    size: int | None
+    seed: int
+    first_view: int
+    images: str | None = field(default=None, metadata=OPTIONAL)
+
+    def load(self, data: str | None = None) -> Task:
+        """The task, from ``data`` where the images have moved."""
+        return load_task(self.task, data or self.data, len(self.classes), self.views, self.size, self.seed, self.first_view)
+
+
+def same_images(task: Task, recorded: str | None, run: str, data) -> None:
+    """InputError where ``task``'s views are not the images a run recorded (``recorded``:
+    :attr:`RunConfig.images`): e.g. a copy of the data with the same names and mirrored images;
     a note where the run, written before runs recorded them, cannot tell."""
-    recorded = config.get("images")
     if recorded is None:
         print(f"note: {run} does not record which images it learned from; "
               f"{f'those in {data}' if data else 'the ' + task.name + ' task'} are taken as they are", file=sys.stderr)
@@ -145,40 +173,62 @@ def same_images(task: Task, config: dict, run: str, data) -> None:
 
 
 @dataclass
+class SavedProgress(Record):
+    """A fold's progress as its checkpoint stores it: the schedule's (:class:`Progress`) with the
+    finished stages' report entries in place of the stages, and the seconds so far."""
+
+    phase: int
+    stage: int
+    t_ksd: float
+    cycles: list[Cycle]
+    stages: list[StageEntry]
+    misses: int
+    done: bool
+    total_cycles: int
+    seconds: float
+    added: list[ClassAdded]
+    sampled_before: int
+
+    def check(self) -> None:
+        """ValueError where a field has the wrong type or range."""
+        counts = [self.phase, self.stage, self.misses, self.total_cycles, self.sampled_before]
+        if any(isinstance(n, bool) or not isinstance(n, int) or n < 0 for n in counts):
+            raise ValueError(f"progress counts {counts} must be integers >= 0")
+        if not (isinstance(self.t_ksd, (int, float)) and 0.0 <= self.t_ksd <= 1.0):
+            raise ValueError(f"t_KSD {self.t_ksd!r} outside [0, 1]")
+        if not (isinstance(self.seconds, (int, float)) and 0.0 <= self.seconds < math.inf):
+            raise ValueError(f"seconds {self.seconds!r} is not a duration")
+        if not isinstance(self.done, bool):
+            raise ValueError("done must be true or false")
+
+
+@dataclass
 class FoldState:
     """A fold's progress, which its checkpoint stores beside the learner: the schedule's
     (:class:`Progress`), the finished stages' report entries, and the seconds so far."""
 
     progress: Progress = field(default_factory=Progress)
-    entries: list = field(default_factory=list)
+    entries: list[StageEntry] = field(default_factory=list)
     seconds: float = 0.0
 
     def to_dict(self) -> dict:
         p = self.progress
-        return {"phase": p.phase, "stage": p.stage, "t_ksd": p.t_ksd, "cycles": [c.to_dict() for c in p.cycles],
-                "stages": self.entries, "misses": p.misses, "done": p.done, "total_cycles": p.total_cycles,
-                "seconds": self.seconds, "added": [a.to_dict() for a in p.added], "sampled_before": p.sampled_before}
+        return SavedProgress(p.phase, p.stage, p.t_ksd, p.cycles, self.entries, p.misses, p.done, p.total_cycles,
+                             self.seconds, p.added, p.sampled_before).to_json()
 
     @classmethod
     def from_dict(cls, state: dict) -> "FoldState":
         """The progress read from a checkpoint; ValueError where a field is missing or has the wrong type or range."""
-        names = list(cls().to_dict())
+        names = [f.name for f in fields(SavedProgress)]
         if not isinstance(state, dict) or sorted(state) != sorted(names):
             raise ValueError(f"progress fields {sorted(state) if isinstance(state, dict) else state!r}, expected {names}")
-        counts = ("phase", "stage", "misses", "total_cycles", "sampled_before")
-        if any(isinstance(state[k], bool) or not isinstance(state[k], int) or state[k] < 0 for k in counts):
-            raise ValueError(f"progress counts {[state[k] for k in counts]} must be integers >= 0")
-        if not (isinstance(state["t_ksd"], (int, float)) and 0.0 <= state["t_ksd"] <= 1.0):
-            raise ValueError(f"t_KSD {state['t_ksd']!r} outside [0, 1]")
-        if not (isinstance(state["seconds"], (int, float)) and 0.0 <= state["seconds"] < math.inf):
-            raise ValueError(f"seconds {state['seconds']!r} is not a duration")
-        if not isinstance(state["done"], bool) or not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):
-            raise ValueError("done must be true or false, and cycles, stages and added lists")
-        progress = Progress(state["phase"], state["stage"], state["t_ksd"], [Cycle.from_dict(c) for c in state["cycles"]],
-                            [Stage.from_dict(e) for e in state["stages"]], state["misses"], state["done"],
-                            state["total_cycles"], [ClassAdded.from_dict(a) for a in state["added"]],
-                            state["sampled_before"])
-        return cls(progress, state["stages"], state["seconds"])
+        if not all(isinstance(state[k], list) for k in ("cycles", "stages", "added")):  # before they are read
+            raise ValueError("cycles, stages and added must be lists")
+        saved = SavedProgress.from_json(state)
+        saved.check()
+        progress = Progress(saved.phase, saved.stage, saved.t_ksd, saved.cycles, [e.stage for e in saved.stages], saved.misses,
+                            saved.done, saved.total_cycles, saved.added, saved.sampled_before)
+        return cls(progress, saved.stages, saved.seconds)
 
 
 def load_learner(path) -> DistinctiveFeatureLearner:
@@ -230,8 +280,8 @@ class Fold:
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
         stored = data.get("config")
-        if isinstance(stored, dict):  # a run written before these options existed ran with BEFORE's values
-            stored = {**BEFORE, "images": self.config.images, **stored}  # nor did it record its images: not checked
+        if isinstance(stored, dict):  # nor did a run written before runs recorded their images: not checked
+            stored = with_older_options(stored, {"images": self.config.images})
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")
@@ -255,7 +305,7 @@ class Fold:
                         progress)
 
     def run(self, max_cycles: int = 20, stages: int | None = 0, resume: bool = False, after_cycle=None,
-            checkpoint_every: float = 0.0, before_cycle=None) -> tuple[dict, DistinctiveFeatureLearner]:
+            checkpoint_every: float = 0.0, before_cycle=None) -> tuple[FoldEntry, DistinctiveFeatureLearner]:
         """Train stages 0..``stages`` (None: auto; per added class in an incremental fold, at most
         ``INCREMENTAL_LIMIT`` expert stages) and test after each; returns the fold's report entry
         and the learner (also saved as learner.json). The checkpoint is written after a cycle or
@@ -297,21 +347,16 @@ class Fold:
                 if after_cycle is not None and not progress.done and len(progress.cycles):
                     after_cycle(progress.total_cycles)
         learner.save(self.folder / "learner.json")
-        entry = {"fold": self.fold, "stages": state.entries}
-        if self.incremental:
-            entry["added"] = [a.to_dict() for a in progress.added]
-        return entry, learner
+        return FoldEntry(self.fold, state.entries, list(progress.added) if self.incremental else None), learner
 
-    def _stage_entry(self, learner, stage: Stage, schedule: Schedule, phase: int, start: float) -> dict:
+    def _stage_entry(self, learner, stage: Stage, schedule: Schedule, phase: int, start: float) -> StageEntry:
         """A finished stage's report entry: the stage, tested on the test images of the classes taught
         in its ``phase``."""
         taught, tested = schedule.taught(phase), schedule.indices(self.test, phase)
         recognitions = learner.recognize_many(self.test, tested)
         labels = [self.test.labels[i] for i in tested]
-        return {**stage.to_dict(), "test": test_block(recognitions, labels, taught),
-                "features": feature_block(learner, recognitions),
-                "confusion": confusion(recognitions, labels, taught, learner.networks),
-                "seconds": time.perf_counter() - start}
+        return StageEntry(stage, test_block(recognitions, labels, taught), feature_block(learner, recognitions),
+                          confusion(recognitions, labels, taught, learner.networks), time.perf_counter() - start)
 
     def _log_class_added(self, added: ClassAdded) -> None:
         if self.logger is not None:
@@ -324,17 +369,17 @@ class Fold:
                 self.logger.add_scalar(f"train/{key}_per_cycle", getattr(cycle, key), step)
             self.logger.add_scalar("train/ksd_min", cycle.ksd_min, step)
 
-    def _log_stage(self, stage: dict) -> None:
+    def _log_stage(self, entry: StageEntry) -> None:
         """Per stage, against the stage's running number in the fold (figures 5.1, 5.11)."""
         if self.logger is None:
             return
-        step = stage["step"]
-        for key, value in stage["test"].items():
+        step = entry.stage.step
+        for key, value in entry.test.to_json().items():
             self.logger.add_scalar(f"test/{key}", value, step)
-        for key, value in stage["features"].items():
+        for key, value in entry.features.to_json().items():
             self.logger.add_scalar(f"features/{key}", value, step)
         for key in ("t_ksd", "ksd_min", "cycles", "target_met", "train_learned", "classes"):
-            self.logger.add_scalar(f"stage/{key}", float(stage[key]), step)
+            self.logger.add_scalar(f"stage/{key}", float(getattr(entry.stage, key)), step)
 
 
 def image_set(task: Task, indices: list[int], space: FeatureSpace, progress: bool, copies: int = 0,

@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -14,54 +16,78 @@ from ftorch.checkpoint import write_text
 from ftorch.recognition.inference import Outcome
 from training.cli.devices import described
 
+from .protocol import RunConfig
+from .records import (
+    Averages,
+    ConfusionRow,
+    FeatureBlock,
+    FoldEntry,
+    Growth,
+    PowerFit,
+    Report,
+    SeedGrowth,
+    SeedStudy,
+    Spread,
+    StageAverage,
+    StageEntry,
+    TestBlock,
+    mean_block,
+)
+
+
+@dataclass(frozen=True)
+class ThesisRow:
+    """An average row of the thesis's tables 4.2 and 5.1: its test and feature blocks (no top-1: the
+    thesis reports none), cycles and presentations (NaN: not given)."""
+
+    test: TestBlock
+    features: FeatureBlock
+    cycles: float
+    presentations: float
+
+
+def _thesis(accuracy, correct, wrong, ambiguous, confused, ignorant, bn, different, queried, sampled, cycles,
+            presentations) -> ThesisRow:
+    return ThesisRow(TestBlock(accuracy=accuracy, correct=correct, wrong=wrong, ambiguous=ambiguous, confused=confused,
+                               ignorant=ignorant), FeatureBlock(bn, different, queried, sampled), cycles, presentations)
+
+
 THESIS_TABLE_4_2 = {  # average rows of table 4.2 (stage 0), for comparison
-    "coil": {"accuracy": .60, "correct": .50, "wrong": .08, "ambiguous": .09, "confused": 0.0, "ignorant": .33,
-             "bn": 53, "different": 38, "queried": 22.1, "sampled": 691, "cycles": 7, "presentations": 420},
-    "plym": {"accuracy": .59, "correct": .51, "wrong": .04, "ambiguous": .07, "confused": .01, "ignorant": .38,
-             "bn": 85, "different": 57, "queried": 27.1, "sampled": 998, "cycles": 8, "presentations": 480},
+    "coil": _thesis(.60, .50, .08, .09, 0.0, .33, 53, 38, 22.1, 691, 7, 420),
+    "plym": _thesis(.59, .51, .04, .07, .01, .38, 85, 57, 27.1, 998, 8, 480),
 }
 
 THESIS_TABLE_5_1 = {  # average rows of table 5.1 (after expert learning); "-inc6" etc. are the incremental tasks
-    "coil": {"accuracy": .82, "correct": .74, "wrong": .03, "ambiguous": .13, "confused": 0.0, "ignorant": .10,
-             "bn": 17, "different": 13, "queried": 8.8, "sampled": 19326, "cycles": 64, "presentations": 3840},
-    "coil-inc6": {"accuracy": .87, "correct": .81, "wrong": .01, "ambiguous": .11, "confused": 0.0, "ignorant": .08,
-                  "bn": 9, "different": 9, "queried": 6.0, "sampled": 15679, "cycles": math.nan, "presentations": 8925},
-    "coil-inc10": {"accuracy": .81, "correct": .75, "wrong": .01, "ambiguous": .09, "confused": .01, "ignorant": .15,
-                   "bn": 31, "different": 19, "queried": 12.7, "sampled": 78723, "cycles": math.nan, "presentations": 50290},
-    "plym": {"accuracy": .75, "correct": .67, "wrong": .05, "ambiguous": .15, "confused": 0.0, "ignorant": .13,
-             "bn": 17, "different": 14, "queried": 8.7, "sampled": 29612, "cycles": 139, "presentations": 8244},
-    "plym-inc8": {"accuracy": .80, "correct": .76, "wrong": .02, "ambiguous": .07, "confused": 0.0, "ignorant": .16,
-                  "bn": 19, "different": 11, "queried": 7.9, "sampled": 49631, "cycles": math.nan, "presentations": 25957},
+    "coil": _thesis(.82, .74, .03, .13, 0.0, .10, 17, 13, 8.8, 19326, 64, 3840),
+    "coil-inc6": _thesis(.87, .81, .01, .11, 0.0, .08, 9, 9, 6.0, 15679, math.nan, 8925),
+    "coil-inc10": _thesis(.81, .75, .01, .09, .01, .15, 31, 19, 12.7, 78723, math.nan, 50290),
+    "plym": _thesis(.75, .67, .05, .15, 0.0, .13, 17, 14, 8.7, 29612, 139, 8244),
+    "plym-inc8": _thesis(.80, .76, .02, .07, 0.0, .16, 19, 11, 7.9, 49631, math.nan, 25957),
 }
 
 
-def thesis_key(report: dict) -> str:
+def thesis_key(report: Report) -> str:
     """Key of the thesis's row for this run in THESIS_TABLE_5_1."""
-    return f"{report['task']}-inc{len(report['classes'])}" if report["config"].get("incremental") else report["task"]
+    return f"{report.task}-inc{len(report.classes)}" if report.incremental else report.task
 
 
-def average(folds: list[dict], which: int) -> dict:
+def average(folds: list[FoldEntry], which: int) -> StageAverage:
     """Mean over folds of the ``test`` and ``features`` blocks of stage ``which`` (0 = first, -1 = last);
-    NaN (null, n/a) for a figure some fold's stage lacks: ``top1`` of a stage tested before top-1 was
-    reported, in a fold resumed from such a checkpoint (:func:`without_top1`)."""
-    stages = [f["stages"][which] for f in folds]
-    out = {}
-    for block in ("test", "features"):
-        keys = dict.fromkeys(k for s in stages for k in s[block])
-        out[block] = {k: float(np.mean([s[block][k] for s in stages])) if all(k in s[block] for s in stages) else math.nan
-                      for k in keys}
-    return out
+    NaN (null, n/a) for a figure some fold's stage lacks, None where every one lacks it: ``top1`` of a
+    stage tested before top-1 was reported, in a fold resumed from such a checkpoint (:func:`without_top1`)."""
+    stages = [f.stages[which] for f in folds]
+    return StageAverage(mean_block([s.test for s in stages]), mean_block([s.features for s in stages]))
 
 
-def without_top1(folds: list[dict], names: list[str] | None = None) -> list[str]:
+def without_top1(folds: list[FoldEntry], names: list[str] | None = None) -> list[str]:
     """"NAME stage S" for every stage of ``folds`` (named ``names``, default "fold K") whose test block has
     no top-1 accuracy: one tested before ftorch reported it, kept by a fold resumed from a checkpoint
     of that version."""
-    names = [f"fold {f['fold']}" for f in folds] if names is None else names
-    return [f"{name} stage {s['stage']}" for f, name in zip(folds, names) for s in f["stages"] if "top1" not in s["test"]]
+    names = [f"fold {f.fold}" for f in folds] if names is None else names
+    return [f"{name} stage {s.stage.stage}" for f, name in zip(folds, names) for s in f.stages if s.test.top1 is None]
 
 
-def top1_note(folds: list[dict], names: list[str] | None = None) -> str | None:
+def top1_note(folds: list[FoldEntry], names: list[str] | None = None) -> str | None:
     """One line naming the stages without top-1 accuracy (:func:`without_top1`), or None where every stage has it."""
     missing = without_top1(folds, names)
     if not missing:
@@ -70,89 +96,81 @@ def top1_note(folds: list[dict], names: list[str] | None = None) -> str | None:
             "(resumed from an older checkpoint); train afresh for it")
 
 
-def build_report(config: dict, device: str, machine: dict, seconds: float, folds: list[dict],
-                 seeds: dict | None = None) -> dict:
-    report = {"task": config["task"], "classes": config["classes"], "seed": config["seed"], "device": device,
-              "machine": machine, "seconds": seconds, "config": config, "folds": folds,
-              "average": {"stage0": average(folds, 0), "final": average(folds, -1)}}
-    if seeds is not None:
-        report["seeds"] = seeds
-    if folds and all(f.get("added") for f in folds):
-        report["growth"] = growth(folds)
-    return report
+def build_report(config: RunConfig, device: str, machine: dict, seconds: float, folds: list[FoldEntry],
+                 seeds: SeedStudy | None = None) -> Report:
+    return Report(config.task, list(config.classes), config.seed, device, machine, seconds, config.to_dict(), folds,
+                  Averages(average(folds, 0), average(folds, -1)), seeds,
+                  growth(folds) if folds and all(f.added for f in folds) else None)
 
 
-def growth(folds: list[dict]) -> dict:
+def growth(folds: list[FoldEntry]) -> Growth:
     """Figure 5.19: features sampled so far against the number of classes taught, and the exponent b
     of sampled ~ a * classes**b fitted by least squares on log-log over the points of every fold
     (each fold's own fit too), with a 95% interval from the slope's standard error (t, n - 2 df)."""
-    curves = {f["fold"]: _sampled_curve(f) for f in folds}
-    pooled = [p for points in curves.values() for p in points]
-    out = {"sampled": {str(k): v for k, v in curves.items()}, "folds": {str(k): _power_fit(v) for k, v in curves.items()}}
-    out.update(_power_fit(pooled))
-    return out
+    curves = {f.fold: _sampled_curve(f) for f in folds}
+    pooled = _power_fit([p for points in curves.values() for p in points])
+    return Growth({str(k): v for k, v in curves.items()}, {str(k): _power_fit(v) for k, v in curves.items()},
+                  pooled.exponent, pooled.interval, pooled.scale, pooled.points)
 
 
-def _sampled_curve(fold: dict) -> list[tuple[int, int]]:
+def _sampled_curve(fold: FoldEntry) -> list[tuple[int, int]]:
     """(classes taught, features sampled so far) after each added class of an incremental fold."""
-    return [(a["classes"], int(total)) for a, total in zip(fold["added"], np.cumsum([a["sampled"] for a in fold["added"]]))]
+    return [(a.classes, int(total)) for a, total in zip(fold.added, np.cumsum([a.sampled for a in fold.added]))]
 
 
-def _power_fit(points: list[tuple[int, int]]) -> dict:
+def _power_fit(points: list[tuple[int, int]]) -> PowerFit:
     """Least-squares line on log-log: its slope b, its scale a = exp(intercept) and a 95% interval of
     b from the slope's standard error. Not available (None) with fewer than two class counts (an
     incremental run of two classes has one), and the interval not with fewer than three points."""
     if len({p[0] for p in points}) < 2:
-        return {"exponent": None, "interval": [None, None], "scale": None, "points": len(points)}
+        return PowerFit(None, [None, None], None, len(points))
     x, y = np.log([p[0] for p in points]), np.log([max(p[1], 1) for p in points])
     line = stats.linregress(x, y)
     half = float(stats.t.ppf(0.975, len(points) - 2) * line.stderr) if len(points) > 2 else None
-    return {"exponent": float(line.slope),
-            "interval": [None, None] if half is None else [float(line.slope) - half, float(line.slope) + half],
-            "scale": float(np.exp(line.intercept)), "points": len(points)}
+    return PowerFit(float(line.slope), [None, None] if half is None else [float(line.slope) - half, float(line.slope) + half],
+                    float(np.exp(line.intercept)), len(points))
 
 
-def growth_over_seeds(runs: list[dict], seeds: list[int]) -> dict:
+def growth_over_seeds(runs: list[FoldEntry], seeds: list[int]) -> SeedGrowth:
     """Figure 5.19's exponent b of one incremental fold trained with several seeds: each seed's own
     fit (:func:`_power_fit`), their mean and a 95% t-interval of the mean over seeds (n - 1 df), the
     spread that a single run's slope interval does not show."""
     curves = [_sampled_curve(r) for r in runs]
-    exponents = [_power_fit(c)["exponent"] for c in curves]
+    exponents = [_power_fit(c).exponent for c in curves]
     mean, interval = None, [None, None]  # not available where a seed's fit is not
     if None not in exponents:
         mean = float(np.mean(exponents))
         half = float(stats.t.ppf(0.975, len(runs) - 1) * np.std(exponents, ddof=1) / math.sqrt(len(runs)))
         interval = [mean - half, mean + half]
-    return {"seeds": seeds, "fold": runs[0]["fold"], "exponents": exponents, "mean": mean,
-            "interval": interval, "sampled": {str(k): c for k, c in zip(seeds, curves)}}
+    return SeedGrowth(seeds, runs[0].fold, exponents, mean, interval, {str(k): c for k, c in zip(seeds, curves)})
 
 
-def seed_study(runs: list[dict], seeds: list[int]) -> dict:
+def seed_study(runs: list[FoldEntry], seeds: list[int]) -> SeedStudy:
     """Figure 5.5: novice (stage 0) vs expert (final stage) test accuracy and features queried of one
     fold trained with several seeds; a paired one-tailed t-test of expert > novice accuracy. In an
     incremental run the novice is stage 0 of the last class added, so both face every class."""
     novices = [_novice(r) for r in runs]
-    novice = np.array([s["test"]["accuracy"] for s in novices])
-    expert = np.array([r["stages"][-1]["test"]["accuracy"] for r in runs])
+    experts = [r.stages[-1] for r in runs]
+    novice = np.array([s.test.accuracy for s in novices])
+    expert = np.array([s.test.accuracy for s in experts])
     test = stats.ttest_rel(expert, novice, alternative="greater")
-    top1 = {"novice_top1": [s["test"].get("top1", math.nan) for s in novices],  # NaN: a stage without it (without_top1)
-            "expert_top1": [r["stages"][-1]["test"].get("top1", math.nan) for r in runs]}
 
-    def spread(values) -> dict:
-        return {"values": [float(v) for v in values], "mean": float(np.mean(values)), "sd": float(np.std(values, ddof=1))}
+    def spread(values) -> Spread:
+        return Spread([float(v) for v in values], float(np.mean(values)), float(np.std(values, ddof=1)))
 
-    return {"seeds": seeds, "fold": runs[0]["fold"], "novice": spread(novice), "expert": spread(expert),
-            **{k: spread(v) for k, v in top1.items()},
-            "novice_queried": spread([s["features"]["queried"] for s in novices]),
-            "expert_queried": spread([r["stages"][-1]["features"]["queried"] for r in runs]),
-            "t": float(test.statistic), "p": float(test.pvalue)}
+    def top1(stages: list[StageEntry]) -> Spread:  # NaN: a stage without it (without_top1)
+        return spread([math.nan if s.test.top1 is None else s.test.top1 for s in stages])
+
+    return SeedStudy(seeds=seeds, fold=runs[0].fold, novice=spread(novice), expert=spread(expert), novice_top1=top1(novices),
+                     expert_top1=top1(experts), novice_queried=spread([s.features.queried for s in novices]),
+                     expert_queried=spread([s.features.queried for s in experts]), t=float(test.statistic), p=float(test.pvalue))
 
 
-def _novice(run: dict) -> dict:
+def _novice(run: FoldEntry) -> StageEntry:
     """The run's first stage with its final class count: stage 0, or in an incremental run (alg. 5.4)
     stage 0 of the last class added."""
-    final = run["stages"][-1].get("classes")
-    return next(s for s in run["stages"] if s.get("classes") == final)
+    final = run.stages[-1].stage.classes
+    return next(s for s in run.stages if s.stage.classes == final)
 
 
 def json_ready(value):
@@ -177,9 +195,9 @@ def shown(value, spec: str = ".2f") -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
-def _spread(spread: dict) -> str:
+def _spread(spread: Spread) -> str:
     """A seed study's mean +- sd (3 decimals), n/a where not available."""
-    return f"{shown(spread['mean'], '.3f')} +- {shown(spread['sd'], '.3f')}"
+    return f"{shown(spread.mean, '.3f')} +- {shown(spread.sd, '.3f')}"
 
 
 def _p(value: float | None) -> str:
@@ -195,68 +213,68 @@ def cell(text) -> str:
     return re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\x{ord(m[0]):02x}", str(text)).replace("|", "\\|")
 
 
-def _summary_row(task: str, n_classes: int, fold, test: dict, features: dict, cycles, presentations) -> str:
-    cells = [task, str(n_classes), str(fold), _p(test["accuracy"]), _p(test.get("top1")), *(_p(test[k]) for k in Outcome),
-             f"{features['bn']:.0f}", f"{features['different']:.0f}", f"{features['queried']:.1f}",
-             f"{features['sampled']:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}",
-             f"{features['sampled'] / presentations:.1f}" if presentations else ""]
+def _summary_row(task: str, n_classes: int, fold, test: TestBlock, features: FeatureBlock, cycles, presentations) -> str:
+    cells = [task, str(n_classes), str(fold), _p(test.accuracy), _p(test.top1), *(_p(getattr(test, k)) for k in Outcome),
+             f"{features.bn:.0f}", f"{features.different:.0f}", f"{features.queried:.1f}",
+             f"{features.sampled:.0f}", "" if math.isnan(cycles) else f"{cycles:.0f}", f"{presentations:.0f}",
+             f"{features.sampled / presentations:.1f}" if presentations else ""]
     return "| " + " | ".join(cells) + " |"
 
 
-def summary_table(report: dict, which: int = 0) -> list[str]:
+def summary_table(report: Report, which: int = 0) -> list[str]:
     """Table 4.2 (``which`` = 0) or 5.1 (-1): accuracy, top-1 accuracy beside it (n/a in the thesis's
     row: it reports none), outcome proportions, feature counts, cycles and presentations so far, per
     fold and averaged, with the thesis's average row; last, features sampled per presentation (alg.
     5.1's search, the thesis's 5.0 on COIL)."""
     head = ["| task | cls. | fold | acc. | top-1 | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | sp'd | cyc. | imgs. | "
             "sp'd/img. |", "|---" * 17 + "|"]
-    rows, n = [], len(report["classes"])
-    task = f"{report['task']}-inc" if report["config"].get("incremental") else report["task"]
+    rows, n = [], len(report.classes)
+    task = f"{report.task}-inc" if report.incremental else report.task
     cycles = []  # all cycles up to and including the stage, as table 5.1 counts them
-    for f in report["folds"]:
-        s = f["stages"][which]
-        cycles.append(sum(t["cycles"] for t in f["stages"][:len(f["stages"]) + which + 1 if which < 0 else which + 1]))
-        rows.append(_summary_row(task, n, f["fold"], s["test"], s["features"], cycles[-1], s["presentations"]))
-    stages = [f["stages"][which] for f in report["folds"]]
-    avg = report["average"]["stage0" if which == 0 else "final"]
-    rows.append(_summary_row(task, n, "avg.", avg["test"], avg["features"],
-                             np.mean(cycles), np.mean([s["presentations"] for s in stages])))
-    thesis = THESIS_TABLE_4_2.get(report["task"]) if which == 0 else THESIS_TABLE_5_1.get(thesis_key(report))
-    if thesis and not (which == 0 and report["config"].get("incremental")):
-        rows.append(_summary_row(f"{task} (thesis)", n, "avg.", thesis, thesis, thesis["cycles"], thesis["presentations"]))
+    for f in report.folds:
+        s = f.stages[which]
+        cycles.append(sum(t.stage.cycles for t in f.stages[:len(f.stages) + which + 1 if which < 0 else which + 1]))
+        rows.append(_summary_row(task, n, f.fold, s.test, s.features, cycles[-1], s.stage.presentations))
+    stages = [f.stages[which] for f in report.folds]
+    avg = report.average.stage0 if which == 0 else report.average.final
+    rows.append(_summary_row(task, n, "avg.", avg.test, avg.features,
+                             np.mean(cycles), np.mean([s.stage.presentations for s in stages])))
+    thesis = THESIS_TABLE_4_2.get(report.task) if which == 0 else THESIS_TABLE_5_1.get(thesis_key(report))
+    if thesis and not (which == 0 and report.incremental):
+        rows.append(_summary_row(f"{task} (thesis)", n, "avg.", thesis.test, thesis.features, thesis.cycles, thesis.presentations))
     return head + rows
 
 
-def stage_table(fold: dict) -> list[str]:
+def stage_table(fold: FoldEntry) -> list[str]:
     """Every stage of a fold (the data of figures 5.1 and 5.11): t_KSD (bold where met), KSD_min,
     test results and feature counts."""
     head = ["| stage | classes | t_KSD | KSD_min | cycles | acc. | top-1 | cor. | wrg. | amb. | cnf. | ign. | BN | dif. | qu'd | "
             "sp'd |", "|---" * 16 + "|"]
     rows = []
-    for s in fold["stages"]:
-        t = f"{s['t_ksd']:.3f}"
-        cells = [str(s["stage"]), str(s["classes"]), f"**{t}**" if s["target_met"] else t, f"{s['ksd_min']:.3f}",
-                 str(s["cycles"]), _p(s["test"]["accuracy"]), _p(s["test"].get("top1")), *(_p(s["test"][k]) for k in Outcome),
-                 str(s["features"]["bn"]), str(s["features"]["different"]), f"{s['features']['queried']:.1f}",
-                 str(s["features"]["sampled"])]
+    for entry in fold.stages:
+        s, test, features = entry.stage, entry.test, entry.features
+        t = f"{s.t_ksd:.3f}"
+        cells = [str(s.stage), str(s.classes), f"**{t}**" if s.target_met else t, f"{s.ksd_min:.3f}",
+                 str(s.cycles), _p(test.accuracy), _p(test.top1), *(_p(getattr(test, k)) for k in Outcome),
+                 str(features.bn), str(features.different), f"{features.queried:.1f}", str(features.sampled)]
         rows.append("| " + " | ".join(cells) + " |")
     return head + rows
 
 
-def added_table(folds: list[dict]) -> list[str]:
+def added_table(folds: list[FoldEntry]) -> list[str]:
     """Figure 5.13's data: features sampled and stages taken while each class was added."""
-    head = ["| classes | class | " + " | ".join(f"fold {f['fold']} sp'd | fold {f['fold']} stages" for f in folds) + " |",
+    head = ["| classes | class | " + " | ".join(f"fold {f.fold} sp'd | fold {f.fold} stages" for f in folds) + " |",
             "|---" * (2 + 2 * len(folds)) + "|"]
     rows = []
-    for n, first in enumerate(folds[0]["added"]):
-        cells = [str(first["classes"]), cell(first["class"])]
+    for n, first in enumerate(folds[0].added):
+        cells = [str(first.classes), cell(first.label)]
         for f in folds:
-            cells += [str(f["added"][n]["sampled"]), str(f["added"][n]["stages"])]
+            cells += [str(f.added[n].sampled), str(f.added[n].stages)]
         rows.append("| " + " | ".join(cells) + " |")
     return head + rows
 
 
-def confusion_table(rows: dict, classes: list, proportions: bool = False) -> list[str]:
+def confusion_table(rows: dict[Any, ConfusionRow], classes: list, proportions: bool = False) -> list[str]:
     """Table 4.3: recognized-as counts for correct/wrong results, amb./cnf./ign., features per class."""
     head = ["| class | " + " | ".join(map(cell, classes)) + " | amb. | cnf. | ign. | # feats. BN |",
             "|---" * (len(classes) + 5) + "|"]
@@ -267,51 +285,55 @@ def confusion_table(rows: dict, classes: list, proportions: bool = False) -> lis
 
     for c in classes:
         r = rows[c]
-        n = sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"] if proportions else 1
-        values = [r["as"][k] / max(n, 1) for k in classes] + [r[k] / max(n, 1) for k in ("ambiguous", "confused", "ignorant")]
+        n = r.total() if proportions else 1
+        values = [r.recognized_as[k] / n for k in classes] + [v / n for v in (r.ambiguous, r.confused, r.ignorant)]
         total = values if total is None else [a + b for a, b in zip(total, values)]
-        out.append(f"| {cell(c)} | " + " | ".join(fmt(v) for v in values) + f" | {r['features']:.0f} |")
+        out.append(f"| {cell(c)} | " + " | ".join(fmt(v) for v in values) + f" | {r.features:.0f} |")
     label = "avg." if proportions else "sum"
     scale = len(classes) if proportions else 1
-    feats = np.mean([rows[c]["features"] for c in classes]) if proportions else sum(rows[c]["features"] for c in classes)
+    feats = np.mean([rows[c].features for c in classes]) if proportions else sum(rows[c].features for c in classes)
     out.append(f"| {label} | " + " | ".join(fmt(v / scale) if proportions else str(int(v)) for v in total) + f" | {feats:.0f} |")
     return head + out
 
 
-def ambiguity_table(rows: dict, classes: list) -> list[str]:
+def ambiguity_table(rows: dict[Any, ConfusionRow], classes: list) -> list[str]:
     """Table 4.4: for ambiguous results, how often each class (diagonal) and its false positives occurred."""
     head = ["| class | " + " | ".join(map(cell, classes)) + " |", "|---" * (len(classes) + 1) + "|"]
     out = []
     for c in classes:
-        cells = [(f"*{rows[c]['ambiguous']}*" if rows[c]["ambiguous"] else "") if k == c else
-                 (str(rows[c]["ambiguous_with"][k]) if rows[c]["ambiguous_with"][k] else "") for k in classes]
+        r = rows[c]
+        cells = [(f"*{r.ambiguous}*" if r.ambiguous else "") if k == c else
+                 (str(r.ambiguous_with[k]) if r.ambiguous_with[k] else "") for k in classes]
         out.append(f"| {cell(c)} | " + " | ".join(cells) + " |")
     return head + out
 
 
-def averaged_rows(folds: list[dict], classes: list, which: int) -> dict:
+def averaged_rows(folds: list[FoldEntry], classes: list, which: int) -> dict[Any, ConfusionRow]:
     """Per-class confusion rows as proportions of each class's test images, averaged over folds."""
     out = {}
     for c in classes:
-        rows = [f["stages"][which]["confusion"][c] for f in folds]
-        totals = [max(sum(r["as"].values()) + r["ambiguous"] + r["confused"] + r["ignorant"], 1) for r in rows]
-        out[c] = {"as": {k: float(np.mean([r["as"][k] / t for r, t in zip(rows, totals)])) for k in classes},
-                  **{k: float(np.mean([r[k] / t for r, t in zip(rows, totals)])) for k in ("ambiguous", "confused", "ignorant")},
-                  "features": float(np.mean([r["features"] for r in rows]))}
+        rows = [f.stages[which].confusion[c] for f in folds]
+
+        def mean(count) -> float:  # of a count as a proportion of the class's test images
+            return float(np.mean([count(r) / r.total() for r in rows]))
+
+        out[c] = ConfusionRow(recognized_as={k: mean(lambda r: r.recognized_as[k]) for k in classes},
+                              ambiguous=mean(lambda r: r.ambiguous), confused=mean(lambda r: r.confused),
+                              ignorant=mean(lambda r: r.ignorant), features=float(np.mean([r.features for r in rows])))
     return out
 
 
-def _confusion_sections(report: dict, which: int, table: str) -> list[str]:
-    classes, lines = report["classes"], []
-    for f in report["folds"]:
-        stage = f["stages"][which]
-        taught = [c for c in classes if c in stage["confusion"]]
-        lines += [f"### Fold {f['fold']}: confusion (table {table[0]} form)", "", *confusion_table(stage["confusion"], taught), "",
-                  f"### Fold {f['fold']}: ambiguous recognitions (table {table[1]} form)", "",
-                  *ambiguity_table(stage["confusion"], taught), ""]
-    if len(report["folds"]) > 1:
+def _confusion_sections(report: Report, which: int, table: str) -> list[str]:
+    classes, lines = report.classes, []
+    for f in report.folds:
+        rows = f.stages[which].confusion
+        taught = [c for c in classes if c in rows]
+        lines += [f"### Fold {f.fold}: confusion (table {table[0]} form)", "", *confusion_table(rows, taught), "",
+                  f"### Fold {f.fold}: ambiguous recognitions (table {table[1]} form)", "",
+                  *ambiguity_table(rows, taught), ""]
+    if len(report.folds) > 1:
         lines += ["### Average of the folds (proportions)", "",
-                  *confusion_table(averaged_rows(report["folds"], classes, which), classes, proportions=True), ""]
+                  *confusion_table(averaged_rows(report.folds, classes, which), classes, proportions=True), ""]
     return lines
 
 
@@ -325,11 +347,11 @@ COLUMNS = ("Columns, as in the thesis's tables: cls. classes; acc. accuracy (def
            "views by what they were recognized as.")
 
 
-def failing_section(folds: list[dict]) -> list[str]:
+def failing_section(folds: list[FoldEntry]) -> list[str]:
     """The training images the search failed on again and again (alg. 4.8, 5.1), per fold and stage:
     which image, which classes, how many searches; nothing where there are none."""
-    rows = [f"| {f['fold']} | {s['stage']} | {x['name']} | {x['class']} | {', '.join(map(str, x['against'])) or '-'} | "
-            f"{x['searches']} |" for f in folds for s in f["stages"] for x in s.get("failing", [])]
+    rows = [f"| {f.fold} | {s.stage.stage} | {x.name} | {x.label} | {', '.join(map(str, x.against)) or '-'} | "
+            f"{x.searches} |" for f in folds for s in f.stages for x in s.stage.failing]
     if not rows:
         return []
     return ["## Training images the search failed on again and again", "",
@@ -338,70 +360,78 @@ def failing_section(folds: list[dict]) -> list[str]:
             "| fold | stage | image | class | against | failed searches |", "|---|---|---|---|---|---|", *rows, ""]
 
 
-def write_markdown(path: Path, report: dict, figures: list[str]) -> None:
-    classes = report["classes"]
-    incremental = report["config"].get("incremental")
-    elsewhere = [f"fold {f['fold']} on {described(f['machine'])}" for f in report["folds"]
-                 if f["machine"] != report["machine"]]  # with --ray, a fold may train on another node
-    memory = "; ".join(f"{task} {mib:.0f}" for task, mib in report.get("gpu_memory_mib", {}).items())
-    lines = [f"# Recognition report: {report['task']}{' (incremental, alg. 5.4)' if incremental else ''}", "",
-             f"{len(classes)} classes, seed {report['seed']}, device {report['device']} "
-             f"({described(report['machine'])}), {report['seconds']:.1f} s.", "",
+def write_markdown(path: Path, report: Report, figures: list[str]) -> None:
+    classes, incremental = report.classes, report.incremental
+    elsewhere = [f"fold {f.fold} on {described(f.machine)}" for f in report.folds
+                 if f.machine != report.machine]  # with --ray, a fold may train on another node
+    memory = "; ".join(f"{task} {mib:.0f}" for task, mib in (report.gpu_memory_mib or {}).items())
+    lines = [f"# Recognition report: {report.task}{' (incremental, alg. 5.4)' if incremental else ''}", "",
+             f"{len(classes)} classes, seed {report.seed}, device {report.device} "
+             f"({described(report.machine)}), {report.seconds:.1f} s.", "",
              *([f"Folds trained on other machines: {'; '.join(elsewhere)}.", ""] if elsewhere else []),
              *([f"Peak GPU memory per task (torch's allocator, MiB): {memory}.", ""] if memory else []), COLUMNS, "",
-             *([f"Note: {top1_note(report['folds'])}.", ""] if without_top1(report["folds"]) else [])]
-    expert = any(len(f["stages"]) > 1 for f in report["folds"])
+             *([f"Note: {top1_note(report.folds)}.", ""] if without_top1(report.folds) else [])]
+    expert = any(len(f.stages) > 1 for f in report.folds)
     if not incremental:
         lines += ["## Novices: after stage 0 (table 4.2 form)", "", *summary_table(report, 0), "",
                   *_confusion_sections(report, 0, ("4.3", "4.4"))]
     if expert or incremental:
         lines += ["## After expert learning: final stage (table 5.1 form)", "", *summary_table(report, -1), "",
                   *_confusion_sections(report, -1, ("5.2", "5.3"))]
-        for f in report["folds"]:
-            lines += [f"## Fold {f['fold']}: every stage (t_KSD in bold where the target was met)", "", *stage_table(f), ""]
+        for f in report.folds:
+            lines += [f"## Fold {f.fold}: every stage (t_KSD in bold where the target was met)", "", *stage_table(f), ""]
     if incremental:
-        lines += ["## Features sampled per added class (figure 5.13 form)", "", *added_table(report["folds"]), ""]
-        if "growth" in report:
-            g = report["growth"]
+        lines += ["## Features sampled per added class (figure 5.13 form)", "", *added_table(report.folds), ""]
+        if report.growth is not None:
+            g = report.growth
+            low, high = g.interval
             lines += ["## Growth of the features sampled with the classes (figure 5.19)", "",
-                      f"sampled so far ~ classes^b: b = {shown(g['exponent'])} (95% interval {shown(g['interval'][0])} "
-                      f"to {shown(g['interval'][1])}, {g['points']} points of all folds; b > 1 is superlinear; not "
+                      f"sampled so far ~ classes^b: b = {shown(g.exponent)} (95% interval {shown(low)} "
+                      f"to {shown(high)}, {g.points} points of all folds; b > 1 is superlinear; not "
                       "available (n/a) with fewer than two class counts, the interval with fewer than three points); "
-                      "per fold: " + ", ".join(f"fold {k} {shown(v['exponent'])}" for k, v in g["folds"].items()), ""]
-    if "peers" in report:
-        mean, final = report["peers"]["average"], report["average"]["final"]["test"]
-        lines += ["## Peers on the same splits (clean test views, mean over folds; compared on top-1 accuracy)", "",
-                  "Each method gives one label per image (ftorch its top label); def. 4.6's accuracy scores ftorch's "
-                  "open-world answer, the set of classes it recognizes, as the thesis does.", "",
-                  "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |", "|---|---|---|---|",
-                  f"| ftorch (final stage) | {shown(final.get('top1'))} | {final['accuracy']:.2f} | "
-                  f"{report['average']['final']['features']['bn'] / len(classes):.1f} features (network nodes) |",
-                  f"| pixel 1-NN | {shown(mean['pixel_nn'].get('clean_top1'))} | {mean['pixel_nn']['clean']:.2f} | "
-                  f"{mean['pixel_nn']['views_per_class']:.0f} views, {mean['pixel_nn']['bytes_per_class'] / 1024:.0f} kB |",
-                  f"| SIFT matching (ratio 0.75) | {shown(mean['sift'].get('clean_top1'))} | {mean['sift']['clean']:.2f} | "
-                  f"{mean['sift']['descriptors_per_view']:.0f} descriptors per view, {mean['sift']['bytes_per_class'] / 1024:.0f} kB |", ""]
-    lines += failing_section(report["folds"])
-    if "seeds" in report:
-        s = report["seeds"]
-        lines += [f"## Seeds (figure 5.5 form): fold {s['fold']}, seeds {s['seeds'][0]}-{s['seeds'][-1]}", "",
-                  "| | novice | expert |", "|---|---|---|",
-                  f"| accuracy, mean +- sd | {s['novice']['mean']:.3f} +- {s['novice']['sd']:.3f} | "
-                  f"{s['expert']['mean']:.3f} +- {s['expert']['sd']:.3f} |",
-                  *([f"| top-1 accuracy, mean +- sd | {_spread(s['novice_top1'])} | {_spread(s['expert_top1'])} |"]
-                    if "novice_top1" in s else []),
-                  f"| features queried, mean +- sd | {s['novice_queried']['mean']:.1f} +- {s['novice_queried']['sd']:.1f} | "
-                  f"{s['expert_queried']['mean']:.1f} +- {s['expert_queried']['sd']:.1f} |", "",
-                  f"Paired one-tailed t-test, expert > novice: t = {shown(s['t'])}, p = {shown(s['p'], '.2g')}"
-                  + (" (not available: expert and novice differ by the same amount on every seed, e.g. not at all)"
-                     if shown(s["p"]) == "n/a" else "") + ".", ""]
-        if "growth" in s:
-            g = s["growth"]
-            lines += [f"Growth of the features sampled with the classes (figure 5.19), fold {g['fold']}: classes^b with "
-                      f"b = {shown(g['mean'])} on average over the seeds (95% interval {shown(g['interval'][0])} to "
-                      f"{shown(g['interval'][1])}); per seed: "
-                      + ", ".join(f"{k} {shown(b)}" for k, b in zip(g["seeds"], g["exponents"])), ""]
+                      "per fold: " + ", ".join(f"fold {k} {shown(v.exponent)}" for k, v in g.folds.items()), ""]
+    if report.peers is not None:
+        lines += _peers_section(report)
+    lines += failing_section(report.folds)
+    if report.seeds is not None:
+        lines += _seeds_section(report.seeds)
     if figures:
         lines += ["## Figures", "", "Learned features (figures 4.7, 4.8; 5.2 after expert stages) and the stage curves "
                   "(figure 5.1 form; growth.png: figure 5.19 for incremental runs).", ""]
         lines += [f"![{Path(p).stem}]({p})" for p in figures] + [""]
     write_text(path, "\n".join(lines))
+
+
+def _peers_section(report: Report) -> list[str]:
+    """``recognize --peers``: pixel 1-NN and SIFT matching beside the final stage, on the same splits."""
+    peers, final = report.peers.average, report.average.final
+    pixels, sift = peers["pixel_nn"], peers["sift"]
+    return ["## Peers on the same splits (clean test views, mean over folds; compared on top-1 accuracy)", "",
+            "Each method gives one label per image (ftorch its top label); def. 4.6's accuracy scores ftorch's "
+            "open-world answer, the set of classes it recognizes, as the thesis does.", "",
+            "| method | top-1 accuracy | accuracy (def. 4.6) | stores per class |", "|---|---|---|---|",
+            f"| ftorch (final stage) | {shown(final.test.top1)} | {final.test.accuracy:.2f} | "
+            f"{final.features.bn / len(report.classes):.1f} features (network nodes) |",
+            f"| pixel 1-NN | {shown(pixels.clean_top1)} | {pixels.clean:.2f} | "
+            f"{pixels.views_per_class:.0f} views, {pixels.bytes_per_class / 1024:.0f} kB |",
+            f"| SIFT matching (ratio 0.75) | {shown(sift.clean_top1)} | {sift.clean:.2f} | "
+            f"{sift.descriptors_per_view:.0f} descriptors per view, {sift.bytes_per_class / 1024:.0f} kB |", ""]
+
+def _seeds_section(s: SeedStudy) -> list[str]:
+    """Figure 5.5's seed study, and figure 5.19's exponent over seeds where incremental."""
+    lines = [f"## Seeds (figure 5.5 form): fold {s.fold}, seeds {s.seeds[0]}-{s.seeds[-1]}", "",
+             "| | novice | expert |", "|---|---|---|",
+             f"| accuracy, mean +- sd | {s.novice.mean:.3f} +- {s.novice.sd:.3f} | {s.expert.mean:.3f} +- {s.expert.sd:.3f} |",
+             *([f"| top-1 accuracy, mean +- sd | {_spread(s.novice_top1)} | {_spread(s.expert_top1)} |"]
+               if s.novice_top1 is not None and s.expert_top1 is not None else []),
+             f"| features queried, mean +- sd | {s.novice_queried.mean:.1f} +- {s.novice_queried.sd:.1f} | "
+             f"{s.expert_queried.mean:.1f} +- {s.expert_queried.sd:.1f} |", "",
+             f"Paired one-tailed t-test, expert > novice: t = {shown(s.t)}, p = {shown(s.p, '.2g')}"
+             + (" (not available: expert and novice differ by the same amount on every seed, e.g. not at all)"
+                if shown(s.p) == "n/a" else "") + ".", ""]
+    if s.growth is not None:
+        g = s.growth
+        lines += [f"Growth of the features sampled with the classes (figure 5.19), fold {g.fold}: classes^b with "
+                  f"b = {shown(g.mean)} on average over the seeds (95% interval {shown(g.interval[0])} to "
+                  f"{shown(g.interval[1])}); per seed: " + ", ".join(f"{k} {shown(b)}" for k, b in zip(g.seeds, g.exponents)), ""]
+    return lines

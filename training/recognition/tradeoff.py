@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,9 +39,10 @@ from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack, unpack
 from ftorch.space.record import FeatureSpace
 
-from ..data.datasets import Task, load_task
+from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score, score_ranked, sift_descriptors
-from .protocol import BEFORE, RunConfig, same_images, test_block
+from .protocol import RecordedTask, RunConfig, same_images, test_block, with_older_options
+from .records import OPTIONAL, Record, Report, TestBlock
 from .robustness import fold_sets, views
 
 SIDES = (4, 8, 16, 32, None)  # pixel 1-NN image sides; None: as stored
@@ -52,7 +53,7 @@ TASK_KEYS = ("task", "data", "classes", "views", "size", "first_view")
 
 
 @dataclass
-class Point:
+class Point(Record):
     """One method at one setting: bytes stored per class, accuracy (def. 4.6) and top-1 accuracy per
     set, weighted over the learners' seeds and folds; ``mean`` and ``mean_top1`` over the sets it
     answers (``answered``)."""
@@ -64,6 +65,51 @@ class Point:
     answered: int
     top1: dict[str, float]
     mean_top1: float
+
+
+@dataclass
+class BudgetRow(Record):
+    """One budget (bytes per class): each method's best point within it, and whether ftorch's top-1
+    accuracy is at or above every peer's (None: ftorch has no point within it)."""
+    budget: int
+    ftorch: Point | None
+    sift: Point | None
+    sift_across: Point | None
+    pixel_nn: Point | None
+    ftorch_leads: bool | None
+
+
+@dataclass
+class LearnerRow(Record):
+    """One learner packed and recognized back: its run, setting, seed, fold, weight, bytes per class,
+    network nodes, and accuracy (def. 4.6) and top-1 accuracy per set."""
+    run: str
+    setting: str
+    seed: int
+    fold: int
+    weight: float
+    bytes_per_class: float
+    features: int
+    accuracy: dict[str, float]
+    top1: dict[str, float]
+
+
+@dataclass
+class Tradeoff(Record):
+    """tradeoff.json: the runs, their task, the sets, the perturbations' seed, the folds' weights, every
+    point, the budget table, every learner, the seconds taken and the machine."""
+    runs: list[str]
+    task: str
+    data: str | None
+    classes: list
+    sets: list[str]
+    seed: int
+    fold_weights: dict[int, float]
+    points: list[Point]
+    budgets: list[BudgetRow]
+    learners: list[LearnerRow]
+    seconds: float
+    machine: dict | None = field(default=None, metadata=OPTIONAL)
 
 
 @dataclass
@@ -79,11 +125,11 @@ class Learner:
 def run_learners(run: Path) -> tuple[dict, list[Learner]]:
     """A recognize run's config and every learner it wrote (seed 0's folds, the other seeds' fold 1)."""
     try:
-        report = json.loads((run / "report.json").read_text())
-        config = report["config"]
-        folds = [int(f["fold"]) for f in report["folds"]]
-        seeds = [int(s) for s in (report.get("seeds") or {}).get("seeds", [config["seed"]])]
-    except (OSError, ValueError, KeyError, TypeError) as err:
+        report = Report.from_json(json.loads((run / "report.json").read_text()))
+        config = report.config
+        folds = [int(f.fold) for f in report.folds]
+        seeds = [int(s) for s in (report.seeds.seeds if report.seeds is not None else [report.seed])]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         raise InputError(f"--runs {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     learners = [Learner(run, seeds[0], k, run / f"fold{k}" / "learner.json") for k in folds]
     learners += [Learner(run, s, 1, run / f"seed{s}" / "fold1" / "learner.json") for s in seeds[1:]]
@@ -99,7 +145,7 @@ def run_learners(run: Path) -> tuple[dict, list[Learner]]:
 def settings(configs: list[dict], runs: list[Path]) -> list[str]:
     """A name for each run: the options in which the runs differ (else the folder's name); an option
     a run's config does not record (written before the option existed) ran at its value then (``BEFORE``)."""
-    configs = [{**RunConfig(c["task"]).to_dict(), **BEFORE, **c} for c in configs]
+    configs = [with_older_options(c, RunConfig(RecordedTask.from_json(c).task).to_dict()) for c in configs]
     keys = [k for k in configs[0] if k not in ("seed", "data", "device", "images") and len({json.dumps(c.get(k)) for c in configs}) > 1]
     return [", ".join(f"{k} {c.get(k)}" for k in keys) if keys else run.name for c, run in zip(configs, runs)]
 
@@ -107,16 +153,17 @@ def settings(configs: list[dict], runs: list[Path]) -> list[str]:
 def common_task(configs: list[dict], runs: list[Path], data: str | None) -> Task:
     """The one task all runs learned (same data, classes, views, size; for Plym the same seed),
     loaded, and checked to be the images each run learned (:func:`same_images`), so the same images."""
-    keys = TASK_KEYS + (("seed",) if configs[0]["task"] == "plym" else ())
-    for config, run in zip(configs[1:], runs[1:]):
-        differ = [k for k in keys if config.get(k) != configs[0].get(k)]
+    tasks = [RecordedTask.from_json(c) for c in configs]
+    first = tasks[0]
+    keys = TASK_KEYS + (("seed",) if first.task == "plym" else ())
+    for recorded, run in zip(tasks[1:], runs[1:]):
+        differ = [k for k in keys if getattr(recorded, k) != getattr(first, k)]
         if differ:
             raise InputError(f"--runs {run} and {runs[0]} learned different tasks ({', '.join(differ)} differ): "
                              "the front compares methods on the same splits")
-    c = configs[0]
-    task = load_task(c["task"], data or c["data"], len(c["classes"]), c["views"], c["size"], c["seed"], c["first_view"])
-    for config, run in zip(configs, runs):
-        same_images(task, config, f"--runs {run}", data or c["data"])
+    task = first.load(data)
+    for recorded, run in zip(tasks, runs):
+        same_images(task, recorded.images, f"--runs {run}", data or first.data)
     return task
 
 
@@ -158,24 +205,19 @@ def packed(learner: DistinctiveFeatureLearner) -> tuple[DistinctiveFeatureLearne
     return learner, len(data) / max(1, len(learner.networks))
 
 
-def _weighted(blocks: list[tuple[float, dict]]) -> dict[str, float]:
-    total = sum(w for w, _ in blocks)
-    return {name: sum(w * b[name] for w, b in blocks) / total for name in blocks[0][1]}
-
-
-def _point(method: str, setting: str, blocks: list[tuple[float, float, dict]], sets: list[str]) -> Point:
-    """A point from (weight, bytes per class, set -> test block (its "accuracy" and "top1")) per learner or fold."""
+def _point(method: str, setting: str, blocks: list[tuple[float, float, dict[str, TestBlock]]], sets: list[str]) -> Point:
+    """A point from (weight, bytes per class, set -> test block) per learner or fold: its accuracy (def. 4.6)
+    and top-1 accuracy weighted over them."""
     total = sum(w for w, _, _ in blocks)
     spent = sum(w * b for w, b, _ in blocks) / total
     answered = [s for s in sets if all(s in scores for _, _, scores in blocks)]
-    mean = {key: {s: sum(w * scores[s][key] for w, _, scores in blocks) / total for s in answered} for key in ("accuracy", "top1")}
-    return Point(method, setting, spent, mean["accuracy"], float(np.mean(list(mean["accuracy"].values()))), len(answered),
-                 mean["top1"], float(np.mean(list(mean["top1"].values()))))
 
+    def mean(figure) -> dict[str, float]:  # figure: of a test block
+        return {s: sum(w * figure(scores[s]) for w, _, scores in blocks) / total for s in answered}
 
-def _scores(block: dict) -> dict:
-    """What a point keeps of a test block (protocol.test_block): accuracy (def. 4.6) and top-1 accuracy."""
-    return {"accuracy": block["accuracy"], "top1": block["top1"]}
+    accuracy, top1 = mean(lambda b: b.accuracy), mean(lambda b: b.top1)
+    return Point(method, setting, spent, accuracy, float(np.mean(list(accuracy.values()))), len(answered),
+                 top1, float(np.mean(list(top1.values()))))
 
 
 def peer_points(task: Task, fold_weights: dict[int, float], kinds: list[str], seed: int, progress: bool) -> list[Point]:
@@ -192,13 +234,13 @@ def peer_points(task: Task, fold_weights: dict[int, float], kinds: list[str], se
             full = SiftMatcher(across_classes=method == "sift_across").fit(*training, found)
             for n in keypoint_budgets(int(full.counts.max())):
                 sift = full if n is None else full.strongest(n)
-                acc = {name: _scores(score_ranked(sift.ranked(images, max(len(names) for names in labels), queries[name]),
-                                                  labels, classes)) for name, (images, labels) in sets.items()}
+                acc = {name: score_ranked(sift.ranked(images, max(len(names) for names in labels), queries[name]), labels, classes)
+                       for name, (images, labels) in sets.items()}
                 blocks.setdefault((method, "all keypoints" if n is None else f"{n} keypoint{'s' * (n != 1)}"), []).append(
                     (weight, sift.storage_per_class(), acc))
         for side in [s for s in SIDES if s is None or s < min(training[0][0].shape)]:
             nn = PixelNN(side).fit(*training)
-            acc = {name: _scores(score(nn.predict(images), labels, classes))
+            acc = {name: score(nn.predict(images), labels, classes)
                    for name, (images, labels) in sets.items() if all(nn.supports(x.shape) for x in images)}
             shape = "x".join(map(str, training[0][0].shape)) if side is None else f"{side}x{side}"
             blocks.setdefault(("pixel_nn", f"{shape} pixels"), []).append((weight, nn.storage_per_class(), acc))
@@ -208,7 +250,7 @@ def peer_points(task: Task, fold_weights: dict[int, float], kinds: list[str], se
 
 
 def learner_points(task: Task, runs: list[tuple[str, list[Learner]]], kinds: list[str], seed: int, space: FeatureSpace,
-                   progress: bool) -> tuple[list[Point], list[dict]]:
+                   progress: bool) -> tuple[list[Point], list[LearnerRow]]:
     """Every run's learners, packed and recognized back, on every fold's sets: one point per run,
     and a row per learner."""
     classes = task.classes()
@@ -220,13 +262,12 @@ def learner_points(task: Task, runs: list[tuple[str, list[Learner]]], kinds: lis
         for setting, learners in runs:
             for x in (x for x in learners if x.fold == k):
                 learner, spent = packed(DistinctiveFeatureLearner.load(x.path))
-                acc = {name: _scores(test_block(learner.recognize_many(env, range(len(env))), env.labels, classes))
+                acc = {name: test_block(learner.recognize_many(env, range(len(env))), env.labels, classes)
                        for name, env in envs.items()}
                 blocks[setting].append((x.weight, spent, acc))
-                rows.append({"run": str(x.run), "setting": setting, "seed": x.seed, "fold": k, "weight": x.weight,
-                             "bytes_per_class": spent, "features": sum(len(n.features) for n in learner.networks.values()),
-                             "accuracy": {name: a["accuracy"] for name, a in acc.items()},
-                             "top1": {name: a["top1"] for name, a in acc.items()}})
+                rows.append(LearnerRow(str(x.run), setting, x.seed, k, x.weight, spent,
+                                       sum(len(n.features) for n in learner.networks.values()),
+                                       {name: a.accuracy for name, a in acc.items()}, {name: a.top1 for name, a in acc.items()}))
         del envs
     return [_point("ftorch", setting, b, list(kinds)) for setting, b in blocks.items()], rows
 
@@ -237,21 +278,20 @@ def best_within(points: list[Point], method: str, budget: float) -> Point | None
     return max(within, key=lambda p: p.mean_top1, default=None)
 
 
-def budget_rows(points: list[Point]) -> list[dict]:
+def budget_rows(points: list[Point]) -> list[BudgetRow]:
     """Per budget: each method's best point within it, and whether ftorch is at or above every peer
     (top-1 accuracy)."""
     rows = []
     for budget in BUDGETS:
         best = {m: best_within(points, m, budget) for m in METHODS}
         ours = best["ftorch"]
-        rows.append({"budget": budget, **{m: None if p is None else asdict(p) for m, p in best.items()},
-                     "ftorch_leads": None if ours is None else all(p is None or ours.mean_top1 >= p.mean_top1
-                                                                   for m, p in best.items() if m != "ftorch")})
+        rows.append(BudgetRow(budget, *best.values(), None if ours is None else all(p is None or ours.mean_top1 >= p.mean_top1
+                                                                                      for m, p in best.items() if m != "ftorch")))
     return rows
 
 
 def tradeoff(runs: list[Path], kinds: list[str], seed: int, space: FeatureSpace, data: str | None,
-             progress: bool) -> dict:
+             progress: bool) -> Tradeoff:
     """The whole benchmark (module doc) as a JSON-ready result."""
     start = time.perf_counter()
     loaded = [run_learners(run) for run in runs]
@@ -262,32 +302,31 @@ def tradeoff(runs: list[Path], kinds: list[str], seed: int, space: FeatureSpace,
     ours, rows = learner_points(task, named, kinds, seed, space, progress)
     peers = peer_points(task, weights, kinds, seed, progress)
     points = ours + peers
-    return {"runs": [str(r) for r in runs], "task": configs[0]["task"], "data": data or configs[0]["data"],
-            "classes": configs[0]["classes"], "sets": kinds, "seed": seed, "fold_weights": weights,
-            "points": [asdict(p) for p in points], "budgets": budget_rows(points), "learners": rows,
-            "seconds": time.perf_counter() - start}
+    first = RecordedTask.from_json(configs[0])
+    return Tradeoff([str(r) for r in runs], first.task, data or first.data, first.classes, kinds, seed, weights, points,
+                    budget_rows(points), rows, time.perf_counter() - start)
 
 
-def _flag(point: dict, sets: int) -> str:
-    return "" if point["answered"] == sets else f" ({point['answered']} of {sets} sets)"
+def _flag(point: Point, sets: int) -> str:
+    return "" if point.answered == sets else f" ({point.answered} of {sets} sets)"
 
 
-def table(result: dict) -> list[str]:
+def table(result: Tradeoff) -> list[str]:
     """Markdown: every point (bytes per class, top-1 accuracy / accuracy (def. 4.6) per set, their
     means), then the budget table (best mean top-1 accuracy, def. 4.6's beside it)."""
-    sets, n = result["sets"], len(result["sets"])
+    sets, n = result.sets, len(result.sets)
     lines = ["Each cell: top-1 accuracy / accuracy (def. 4.6); the methods are compared on top-1.", "",
              "| method | setting | bytes per class | " + " | ".join(sets) + " | mean |", "|---|---|---|" + "---|" * (n + 1)]
-    for p in sorted(result["points"], key=lambda p: (p["method"], p["bytes_per_class"])):
-        lines.append(f"| {p['method']} | {p['setting']} | {p['bytes_per_class']:,.0f} | "
-                     + " | ".join(f"{p['top1'][s]:.2f} / {p['accuracy'][s]:.2f}" if s in p["accuracy"] else "n/a" for s in sets)
-                     + f" | {p['mean_top1']:.2f} / {p['mean']:.2f}{_flag(p, n)} |")
+    for p in sorted(result.points, key=lambda p: (p.method, p.bytes_per_class)):
+        lines.append(f"| {p.method} | {p.setting} | {p.bytes_per_class:,.0f} | "
+                     + " | ".join(f"{p.top1[s]:.2f} / {p.accuracy[s]:.2f}" if s in p.accuracy else "n/a" for s in sets)
+                     + f" | {p.mean_top1:.2f} / {p.mean:.2f}{_flag(p, n)} |")
     lines += ["", "Best mean top-1 accuracy within each budget (bytes per class; accuracy (def. 4.6) after the slash):", "",
               "| budget | ftorch | SIFT, ratio per view | SIFT, ratio across classes | pixel 1-NN | ftorch at or above every peer |",
               "|---|---|---|---|---|---|"]
-    for row in result["budgets"]:
-        cells = [("—" if row[m] is None else f"{row[m]['mean_top1']:.2f} / {row[m]['mean']:.2f} ({row[m]['setting']}){_flag(row[m], n)}")
-                 for m in METHODS]
-        lead = {None: "—", True: "yes", False: "no"}[row["ftorch_leads"]]
-        lines.append(f"| {row['budget']:,} | " + " | ".join(cells) + f" | {lead} |")
+    for row in result.budgets:
+        best = [getattr(row, m) for m in METHODS]
+        cells = [("—" if p is None else f"{p.mean_top1:.2f} / {p.mean:.2f} ({p.setting}){_flag(p, n)}") for p in best]
+        lead = {None: "—", True: "yes", False: "no"}[row.ftorch_leads]
+        lines.append(f"| {row.budget:,} | " + " | ".join(cells) + f" | {lead} |")
     return lines
