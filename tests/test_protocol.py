@@ -102,6 +102,33 @@ def test_interrupted_fold_resumes_to_the_same_result(small_task, tmp_path, monke
         assert json.dumps(again.state_dict()) == json.dumps(learner.state_dict())
 
 
+def test_a_fold_checkpoint_of_schema_0_resumes_and_a_newer_schema_is_refused_in_one_line(small_task, tmp_path):
+    """A checkpoint written before schemas were numbered and before some options existed (its config and
+    its learner state without them) resumes to the same result: both migrations fill the options' values
+    then, the thesis's here. One of a newer schema is refused in one line that names it."""
+    whole, _ = make_fold(small_task, tmp_path / "whole").run(max_cycles=3, stages=1)
+
+    def stop(cycle):
+        if cycle == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, after_cycle=stop)
+    path = tmp_path / "cut" / "checkpoint.json"
+    saved = json.loads(path.read_text())
+    assert saved["schema"] == 1 and saved["learner"]["schema"] == 1
+    newer = ("leak", "contrast", "texture_parts", "calibrate", "regions", "test_information")
+    old = {**{k: v for k, v in saved.items() if k != "schema"}, "config": {k: v for k, v in saved["config"].items()
+                                                                            if k not in (*newer, "dynamic")},
+           "learner": {k: v for k, v in saved["learner"].items() if k not in (*newer, "schema")}}
+    path.write_text(json.dumps({**old, "schema": 2}))
+    with pytest.raises(InputError, match=r"checkpoint.json: a fold checkpoint of schema 2, newer than this ftorch reads \(1\)"):
+        make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, resume=True)
+    path.write_text(json.dumps(old))
+    resumed, _ = make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, resume=True)
+    assert without_timing(resumed.to_json()) == without_timing(whole.to_json())
+
+
 def test_checkpoints_are_written_once_their_interval_has_passed(small_task, tmp_path, monkeypatch):
     """checkpoint_every 0 writes after every cycle and stage; a long interval writes only at the end;
     both learn the same. The clock is faked: each reading advances it by one second."""

@@ -67,7 +67,7 @@ def test_states_of_schema_0_migrate_to_the_values_before_each_option_existed(sha
     thesis = LearnerSettings.thesis()
     assert moved["schema"] == 1 and moved["seed"] == 0 and moved["test_information"] == state["min_information"]
     assert all(moved[k] == getattr(thesis, k) for k in ("pseudocount", "redundancy", "leak", "contrast", "calibrate"))
-    assert moved["primitives"] == ["texel", "edgel"] and old.get("schema") is None  # the input is left as it was
+    assert moved["primitives"] == "texel,edgel" and old.get("schema") is None  # the input is left as it was
     loaded = DistinctiveFeatureLearner()
     loaded.load_state_dict(old)
     assert loaded.settings == thesis.replace(n_ex=state["n_ex"], n_fgen=state["n_fgen"], min_information=state["min_information"],

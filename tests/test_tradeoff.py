@@ -279,20 +279,27 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     assert run.main(["tradeoff", "--runs", str(missing), "--out", str(tmp_path / "c")]) == 2
     assert run.main(["tradeoff", "--runs", str(runs / "k1"), "--out", str(runs / "k1" / "front")]) == 2
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 2  # no --overwrite
+    newer = tmp_path / "newer"
+    shutil.copytree(runs / "k1", newer)
+    (newer / "report.json").write_text(json.dumps({**json.loads((runs / "k1" / "report.json").read_text()), "schema": 2}))
+    assert run.main(["tradeoff", "--runs", str(newer), "--out", str(tmp_path / "c")]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
-    assert len(errors) == 4 and "learned different tasks (size differ)" in errors[0] and "is missing" in errors[1]
+    assert len(errors) == 5 and "learned different tasks (size differ)" in errors[0] and "is missing" in errors[1]
     assert "lies inside --runs" in errors[2] and not (runs / "k1" / "front").exists()
+    assert errors[4].endswith(f"--runs {newer}: a report of schema 2, newer than this ftorch reads (1): update ftorch to read it")
 
 
 def test_runs_are_named_by_the_options_they_differ_in_and_older_configs_by_their_defaults():
     from ftorch.recognition.settings import LearnerSettings
     from training.recognition.protocol import RunConfig
+    from training.recognition.schema import migrated_config
     from training.recognition.tradeoff import settings
 
     new = RunConfig("folder", learner=LearnerSettings(calibrate=True), augment=2, dynamic=True).to_dict()
     old = RunConfig("folder").to_dict()
     for key in ("calibrate", "dynamic", "leak"):  # written before these options existed
         old.pop(key)
+    old = migrated_config(old, None, "a report")  # as tradeoff reads a report of schema 0
     assert settings([old, new], [Path("a"), Path("b")]) == ["calibrate False, augment 0, dynamic False",
                                                             "calibrate True, augment 2, dynamic True"]
     assert settings([old, old], [Path("a"), Path("b")]) == ["a", "b"]

@@ -40,27 +40,38 @@ GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a t
 MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed stays a signed 64-bit integer
 
 
+def options_before(stored: dict) -> dict:
+    """The learner options of ``stored`` (a learner state, or a run's config that writes them in line)
+    completed by schema 0's rule: an option it does not record at its value before the option existed,
+    the thesis's, and ``test_information`` at ``min_information``'s. Only the options; lists as stored."""
+    options = {k: stored[k] for k in ("n_ex", "n_fgen", "min_information")}  # in every file
+    options.update({k: stored[k] for k in LearnerSettings.names() if k in stored})
+    options.setdefault("test_information", options["min_information"])  # validated by LearnerSettings
+    return {**LearnerSettings.thesis().to_dict(), **options}
+
+
 def _schema_0(state: dict) -> dict:
     """Version 0 to 1: the options and seed a file does not record, at their values before they existed."""
-    stored = {k: state[k] for k in ("n_ex", "n_fgen", "min_information")}  # in every state
-    stored.update({k: state[k] for k in LearnerSettings.names() if k in state})
-    stored.setdefault("test_information", stored["min_information"])  # validated by LearnerSettings
-    before = LearnerSettings.thesis().to_dict()
-    before["primitives"] = [str(p) for p in LearnerSettings.thesis().primitives]
-    return {**state, **before, **stored, "seed": state.get("seed", 0), "schema": 1}
+    return {**state, **options_before(state), "seed": state.get("seed", 0), "schema": 1}
 
 
 MIGRATIONS = {0: _schema_0}  # version -> the state one version on
 
 
-def migrated(state: dict) -> dict:
-    """``state`` brought to :data:`SCHEMA` by the migrations of the versions it passes; InputError for a newer one."""
-    version = state.get("schema", 0)
+def schema_of(version, what: str, newest: int) -> int:
+    """A file's schema ``version`` (None: written before schemas were numbered, 0), checked: ValueError for
+    no version number, InputError (one line) for one newer than ``newest``, which this ftorch reads."""
+    version = 0 if version is None else version
     if isinstance(version, bool) or not isinstance(version, int) or version < 0:
         raise ValueError(f"schema {version!r} is not a version number")
-    if version > SCHEMA:
-        raise InputError(f"a learner state of schema {version}, newer than this ftorch reads ({SCHEMA}): "
-                         "update ftorch to read it")
+    if version > newest:
+        raise InputError(f"{what} of schema {version}, newer than this ftorch reads ({newest}): update ftorch to read it")
+    return version
+
+
+def migrated(state: dict) -> dict:
+    """``state`` brought to :data:`SCHEMA` by the migrations of the versions it passes; InputError for a newer one."""
+    version = schema_of(state.get("schema"), "a learner state", SCHEMA)
     while version < SCHEMA:
         state = MIGRATIONS[version](state)
         version = state["schema"]

@@ -26,6 +26,7 @@ from training.recognition.report import (
 from training.recognition.robustness import SETS, TABLE_CELLS, Robustness, feature_tables, fold_robustness, perturbations
 from training.recognition.robustness import average as average_robustness
 from training.recognition.robustness import table as robustness_table
+from training.recognition.schema import migrated_config
 
 
 def robustness_command(args) -> int:
@@ -64,11 +65,13 @@ def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Pa
     """The body of :func:`robustness_command` once its output folder is held."""
     try:
         report = Report.from_json(json.loads((run / "report.json").read_text()))
-        recorded = RecordedTask.from_json(report.config)
+        recorded = RecordedTask.from_json(migrated_config(report.config, report.schema, f"--run {run}: a report"))
         data = args.data or recorded.data
         folds = [f.fold for f in report.folds]
         if not folds:
             raise ValueError("no folds")
+    except InputError:
+        raise  # a newer schema: its own line
     except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError, RecursionError) as err:
         raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     task = recorded.load(data)  # outside the try: its own refusals (a missing --data) are one line already

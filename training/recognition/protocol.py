@@ -37,6 +37,7 @@ from training.data.augment import augment
 from training.data.datasets import Task, load_task
 
 from .records import OPTIONAL, ConfusionRow, FeatureBlock, FoldEntry, Record, StageEntry, TestBlock
+from .schema import SCHEMA, migrated_config
 
 FOLD_KIND = "fold"
 
@@ -80,19 +81,6 @@ def feature_block(learner: DistinctiveFeatureLearner, recognitions: list[Recogni
     nodes = [f for net in learner.networks.values() for f in net.features]
     return FeatureBlock(len(nodes), len(set(nodes)),
                         float(np.mean([len(r.queried) for r in recognitions])) if recognitions else 0.0, learner.sampled)
-
-
-# what a run written before an option existed ran with (the option's value then, not its default now)
-BEFORE = {"leak": 0.0, "primitives": "texel,edgel", "calibrate": False, "dynamic": False, "regions": "", "contrast": 1,
-          "texture_parts": False}
-
-
-def with_older_options(stored: dict, base: dict) -> dict:
-    """A config as a run wrote it (RunConfig.to_dict), with what a run written before some options
-    existed lacks: ``base`` (e.g. today's defaults), overridden by the options' values then (``BEFORE``).
-    The one place older configs are filled in, for resume and tradeoff alike (to be replaced by a
-    versioned schema migration)."""
-    return {**base, **BEFORE, **stored}
 
 
 @dataclass(frozen=True)
@@ -275,13 +263,14 @@ class Fold:
         save_checkpoint(self.checkpoint, FOLD_KIND, {
             "config": self.config.to_dict(), "fold": self.fold, "state": state.to_dict(),
             "order": encode_array(order.get_state().numpy().astype(np.float64)),
-            "features": table.pack(), "learner": learned, "cache": cache})
+            "features": table.pack(), "learner": learned, "cache": cache, "schema": SCHEMA})
 
     def _resume(self):
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
         stored = data.get("config")
         if isinstance(stored, dict):  # nor did a run written before runs recorded their images: not checked
-            stored = with_older_options(stored, {"images": self.config.images})
+            stored = {"images": self.config.images,
+                      **migrated_config(stored, data.get("schema"), f"{self.checkpoint}: a fold checkpoint")}
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")

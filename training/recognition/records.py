@@ -289,7 +289,7 @@ class SplitPeers(Record):
 class Report(Record):
     """A recognition run's report.json: the task, where it ran, its config (as RunConfig.to_dict wrote
     it), every fold's entry, the averages, and where asked the seed study, the growth (incremental),
-    the peak GPU memory per task and the peers on the same splits (``recognize --peers``)."""
+    the peak GPU memory per task and the peers on the same splits (``recognize --peers``); its schema."""
 
     task: str
     classes: list
@@ -304,6 +304,7 @@ class Report(Record):
     growth: Growth | None = field(default=None, metadata=OPTIONAL)
     gpu_memory_mib: dict | None = field(default=None, metadata=OPTIONAL)
     peers: SplitPeers | None = field(default=None, metadata=OPTIONAL)
+    schema: int | None = field(default=None, metadata=OPTIONAL)  # training.recognition.schema; None: 0
 
     @property
     def incremental(self) -> bool:

@@ -33,6 +33,7 @@ from .records import (
     TestBlock,
     mean_block,
 )
+from .schema import SCHEMA
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,7 @@ def build_report(config: RunConfig, device: str, machine: dict, seconds: float, 
                  seeds: SeedStudy | None = None) -> Report:
     return Report(config.task, list(config.classes), config.seed, device, machine, seconds, config.to_dict(), folds,
                   Averages(average(folds, 0), average(folds, -1)), seeds,
-                  growth(folds) if folds and all(f.added for f in folds) else None)
+                  growth(folds) if folds and all(f.added for f in folds) else None, schema=SCHEMA)
 
 
 def growth(folds: list[FoldEntry]) -> Growth:

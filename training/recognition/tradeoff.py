@@ -41,9 +41,10 @@ from ftorch.space.record import FeatureSpace
 
 from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score, score_ranked, sift_descriptors
-from .protocol import RecordedTask, RunConfig, same_images, test_block, with_older_options
+from .protocol import RecordedTask, RunConfig, same_images, test_block
 from .records import OPTIONAL, Record, Report, TestBlock
 from .robustness import fold_sets, views
+from .schema import migrated_config
 
 SIDES = (4, 8, 16, 32, None)  # pixel 1-NN image sides; None: as stored
 BUDGETS = (256, 512, 1024, 2048, 4096, 8192, 16384)  # bytes per class in the budget table
@@ -126,9 +127,11 @@ def run_learners(run: Path) -> tuple[dict, list[Learner]]:
     """A recognize run's config and every learner it wrote (seed 0's folds, the other seeds' fold 1)."""
     try:
         report = Report.from_json(json.loads((run / "report.json").read_text()))
-        config = report.config
+        config = migrated_config(report.config, report.schema, f"--runs {run}: a report")
         folds = [int(f.fold) for f in report.folds]
         seeds = [int(s) for s in (report.seeds.seeds if report.seeds is not None else [report.seed])]
+    except InputError:
+        raise  # a newer schema: its own line
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
         raise InputError(f"--runs {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     learners = [Learner(run, seeds[0], k, run / f"fold{k}" / "learner.json") for k in folds]
@@ -144,8 +147,8 @@ def run_learners(run: Path) -> tuple[dict, list[Learner]]:
 
 def settings(configs: list[dict], runs: list[Path]) -> list[str]:
     """A name for each run: the options in which the runs differ (else the folder's name); an option
-    a run's config does not record (written before the option existed) ran at its value then (``BEFORE``)."""
-    configs = [with_older_options(c, RunConfig(RecordedTask.from_json(c).task).to_dict()) for c in configs]
+    a run's config does not record ran at its value then (``configs`` come migrated: training.recognition.schema)."""
+    configs = [{**RunConfig(RecordedTask.from_json(c).task).to_dict(), **c} for c in configs]
     keys = [k for k in configs[0] if k not in ("seed", "data", "device", "images") and len({json.dumps(c.get(k)) for c in configs}) > 1]
     return [", ".join(f"{k} {c.get(k)}" for k in keys) if keys else run.name for c, run in zip(configs, runs)]
 
