@@ -10,7 +10,7 @@ from pathlib import Path
 
 from training import bench, run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / ".ci" / "device"
 
 

@@ -20,13 +20,12 @@ from ftorch.checkpoint import decode_array, encode_array, write_atomic
 from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
+from tests.recognition.test_learner import shape, train
+from tests.training.test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
 from training import run
 from training.cli import outputs
 from training.data import coil
 from training.data.datasets import coil_task
-
-from .test_learner import shape, train
-from .test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
 
 
 def exit_code(argv) -> int:

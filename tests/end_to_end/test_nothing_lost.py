@@ -18,12 +18,11 @@ from ftorch import DistinctiveFeatureLearner, InputError
 from ftorch.checkpoint import write_text
 from ftorch.grasp import GraspLearner
 from ftorch.recognition.environment import ImageSet
+from tests.end_to_end.test_hardening import RUN, exit_code, one_line
+from tests.end_to_end.test_run_folders import files
 from training import run
 from training.cli import outputs
 from training.recognition.report import confusion_table
-
-from .test_hardening import RUN, exit_code, one_line
-from .test_run_folders import files
 
 ROOT = os.geteuid() == 0 if hasattr(os, "geteuid") else False
 needs_root = pytest.mark.skipif(not ROOT, reason="making device nodes (mknod) needs root")

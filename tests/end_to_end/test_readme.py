@@ -8,7 +8,7 @@ import pytest
 
 from training import run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = (ROOT / "README.md").read_text()
 DOCS = [README] + [(ROOT / "docs" / f"{page}.md").read_text() for page in ("usage", "results", "decisions", "benchmark", "layout")]
 CI = (ROOT / ".ci" / "run").read_text()

@@ -1,5 +1,5 @@
 """Nothing silently wrong, no traceback, no crash after the work is done: the second round of
-careless and hostile inputs (the first is tests/test_hardening.py)."""
+careless and hostile inputs (the first is tests/end_to_end/test_hardening.py)."""
 import base64
 import json
 import math
@@ -20,14 +20,13 @@ from ftorch.checkpoint import MAX_BYTES
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.space import record
+from tests.end_to_end.test_hardening import RUN, exit_code, one_line
+from tests.recognition.test_learner import shape, train
+from tests.training.test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
 from training import bench, run
 from training.cli import outputs, parallel
 from training.data.datasets import load_task, plym_task
 from training.data.perturb import save_examples
-
-from .test_hardening import RUN, exit_code, one_line
-from .test_learner import shape, train
-from .test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
 
 
 def _folder(root, classes: dict[str, list[np.ndarray]]):
@@ -216,7 +215,7 @@ def test_a_flat_image_trains_and_evaluates(tmp_path):
                      "--quiet", "--device", "cpu", "--out", str(tmp_path / "e")]) == 0
     images = {r["image"]: r for r in json.loads((tmp_path / "e" / "evaluate.json").read_text())["images"]}
     assert "con6/99.png" in images
-    usage = (Path(__file__).parents[1] / "docs" / "usage.md").read_text()  # and the docs say so
+    usage = (Path(__file__).parents[2] / "docs" / "usage.md").read_text()  # and the docs say so
     assert "A flat image (one grey level) is an image" in usage and "empty or flat images" not in usage
 
 

@@ -12,10 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.end_to_end.test_hardening import RUN, exit_code, one_line
 from training import run
 from training.cli import outputs
-
-from .test_hardening import RUN, exit_code, one_line
 
 LOCK = outputs.LOCK
 

@@ -8,7 +8,7 @@ from ftorch.recognition.environment import ImageSet
 from ftorch.space.features import Conjunction, Disjunction, Geometric, LocalFeature, Texel
 from ftorch.space.generate import expand_geometric
 from ftorch.space.primitives import PartKind
-from tests.test_learner import shape
+from tests.recognition.test_learner import shape
 
 
 def _setting():

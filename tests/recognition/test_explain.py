@@ -315,9 +315,9 @@ def test_a_folder_stands_for_its_images_in_name_order(saved, tmp_path, capsys):
 
 
 def test_a_region_bound_feature_is_located_and_drawn_inside_its_region():
-    """A learner with regions (the task of tests/test_search.py where only the place tells the classes
+    """A learner with regions (the task of tests/recognition/test_search.py where only the place tells the classes
     apart): each bounded step is found inside its disc, drawn there, and the JSON names the region."""
-    from tests.test_search import _spot
+    from tests.recognition.test_search import _spot
     rng = np.random.default_rng(0)
     images = [_spot(rng) if k % 2 == 0 else np.ascontiguousarray(np.rot90(_spot(rng), 2)) for k in range(12)]
     labels = ["upper left" if k % 2 == 0 else "lower right" for k in range(12)]

@@ -12,9 +12,8 @@ from ftorch.recognition.counting import Counting
 from ftorch.recognition.inference import Recognition, recognize, residual_entropy
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
-
-from .test_learner import shapes  # noqa: F401  (fixture)
-from .test_recognition import two_class_networks
+from tests.recognition.test_learner import shapes  # noqa: F401  (fixture)
+from tests.recognition.test_recognition import two_class_networks
 
 
 def _train(env, learner, cycles: int, t_ksd: float = 0.0, order_seed: int = 0) -> list[list[str]]:

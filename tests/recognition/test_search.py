@@ -13,7 +13,7 @@ from ftorch.recognition.stages import REPEATED, FailedSearch, Stage, repeated
 from ftorch.space.features import Texel, Within
 from ftorch.space.generate import random_texel
 from ftorch.space.region import Frame, Region
-from tests.test_learner import shape
+from tests.recognition.test_learner import shape
 
 
 def test_repeated_counts_each_image_and_pair_and_keeps_those_failed_again():

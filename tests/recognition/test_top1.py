@@ -16,14 +16,13 @@ from ftorch import Answer, DistinctiveFeatureLearner, FeatureSpace, ImageSet, In
 from ftorch.recognition.bayes import CLASS, ClassNetwork
 from ftorch.recognition.inference import Outcome, Plan, Recognition, outcome, recognize, recognize_block, top_class
 from ftorch.recognition.learner import BLOCK_MIN
+from tests.recognition.test_bayes import pgmpy_query, random_network
 from training import run
 from training.data.datasets import load_task, plym_task
 from training.plots import curves_figure, figure_rgb
 from training.recognition.protocol import image_set
 from training.recognition.protocol import test_block as scored  # (a test_ name would be collected)
 from training.recognition.report import average, write_markdown
-
-from .test_bayes import pgmpy_query, random_network
 
 PRESENT, ABSENT = 0.9, 0.1  # feature values above and below every hand-made network's threshold 0.5
 

@@ -11,8 +11,7 @@ from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, 
 from ftorch.space.generate import expand_geometric, random_edgel_pair, random_texel
 from ftorch.space.reference import reference_values
 from ftorch.space.sampling import sample_part
-
-from .conftest import random_image
+from tests.conftest import random_image
 
 
 @pytest.fixture(scope="module")

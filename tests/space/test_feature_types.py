@@ -16,8 +16,7 @@ from ftorch.space.features import Conjunction, Disjunction, Feature, FeatureTabl
 from ftorch.space.generate import random_texel
 from ftorch.space.primitives import PartKind
 from ftorch.space.reference import reference_values
-
-from .conftest import random_image
+from tests.conftest import random_image
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,8 @@ from ftorch import FeatureSpace, InputError, ScaleSpace
 from ftorch.space import record, scale_space, texture
 from ftorch.space.kernels import band_matrix, band_span, derivative_kernels, kernel_radius
 from ftorch.space.reference import scipy_basis
-
-from .conftest import random_image
-from .test_texture import brute_histograms
+from tests.conftest import random_image
+from tests.space.test_texture import brute_histograms
 
 
 def _nbytes(plan) -> int:

@@ -22,9 +22,8 @@ from ftorch.space.generate import expand_geometric, localize, random_edgel_pair,
 from ftorch.space.primitives import PartKind
 from ftorch.space.reference import local_value_at, reference_values, region_holds
 from ftorch.space.region import frame_coordinates, inside, object_frames, pixel_ellipse
-
-from .conftest import random_image
-from .test_tradeoff import rounded
+from tests.conftest import random_image
+from tests.training.test_tradeoff import rounded
 
 
 @pytest.fixture(scope="module")

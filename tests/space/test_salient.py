@@ -7,8 +7,7 @@ from ftorch import BLOB, EDGEL, FeatureSpace, PartKind
 from ftorch.images import contrast_normalized
 from ftorch.space.kernels import kernel_radius
 from ftorch.space.steering import steer
-
-from .conftest import random_image
+from tests.conftest import random_image
 
 
 def test_strongest_blob_sits_at_the_centre_with_its_scale():

@@ -11,8 +11,7 @@ from ftorch.space.kernels import kernel_radius
 from ftorch.space.reference import scipy_basis
 from ftorch.space.scale_space import Pyramid
 from ftorch.space.steering import steer, steer_block
-
-from .conftest import random_image
+from tests.conftest import random_image
 
 
 @pytest.mark.parametrize("method", list(Pyramid))

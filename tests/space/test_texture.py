@@ -24,8 +24,7 @@ from ftorch.space.features import Conjunction, Feature, Texel, Texture
 from ftorch.space.generate import random_edgel_pair, random_texel, random_texture
 from ftorch.space.record import ImageRecords
 from ftorch.space.texture import BINS, FIRST_LEVEL, level_sigma, memberships
-
-from .conftest import random_image
+from tests.conftest import random_image
 
 
 @pytest.fixture(scope="module")

@@ -25,9 +25,8 @@ from ftorch.space.record import ImageRecords
 from ftorch.space.reference import local_value_at, reference_values, texture_grid
 from ftorch.space.sampling import SPAN_TOLERANCE, GridLayout, placements, sample_texture
 from ftorch.space.texture import BINS, FIRST_LEVEL, TextureGrid, grid_step, level_sigma
-
-from .conftest import random_image
-from .test_tradeoff import rounded
+from tests.conftest import random_image
+from tests.training.test_tradeoff import rounded
 
 
 @pytest.fixture(scope="module")

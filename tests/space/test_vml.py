@@ -7,8 +7,7 @@ import pytest
 import torch
 
 from ftorch.vml import FUNCTIONS
-
-from .conftest import COIL
+from tests.conftest import COIL
 
 VIEWS = COIL.parent / "coil-20-128"
 

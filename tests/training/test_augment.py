@@ -6,10 +6,9 @@ import pytest
 import torch
 
 from ftorch.recognition.settings import LearnerSettings
+from tests.training.test_robustness import views
 from training.data import perturb
 from training.data.augment import augment, overview, texture
-
-from .test_robustness import views
 
 
 def occluded(image: torch.Tensor) -> bool:

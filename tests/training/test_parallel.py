@@ -11,12 +11,11 @@ import torch
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
+from tests.training.test_protocol import check_events
 from training import run
 from training.cli.outputs import Ledger
 from training.cli.parallel import CORES, TasksFailed, run_tasks, share_idle_cores
 from training.commands import recognize
-
-from .test_protocol import check_events
 
 ARGS = ["recognize", "--task", "plym", "--classes", "3", "--size", "32", "--folds", "2", "--seed", "1",
         "--device", "cpu", "--quiet", "--stages", "0", "--max-cycles", "3"]

@@ -6,11 +6,10 @@ import pytest
 import torch
 
 from ftorch import InputError
+from tests.end_to_end.test_hardening import exit_code, one_line
 from training.data import plym
 from training.data.datasets import load_task, plym_task
 from training.data.plym import plym_images
-
-from .test_hardening import exit_code, one_line
 
 BEYOND = [  # (classes, views, first_view), what the refusal names
     ((100, None, 0), "--classes 100: the plym task has 8 classes; expected 2 to 8"),

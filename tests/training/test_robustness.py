@@ -8,10 +8,9 @@ import pytest
 import torch
 
 from ftorch.errors import InputError
+from tests.conftest import random_image
 from training.data.perturb import GREY, KINDS, mask, perturb, save_examples
 from training.recognition.peers import PixelNN, SiftMatcher, score, score_ranked
-
-from .conftest import random_image
 
 SHIFTS = [(0, 0), (2, 1), (-1, 3), (3, -2)]
 

@@ -12,10 +12,9 @@ from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack, unpack
 from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture, Within
+from tests.training.test_robustness import u8, view, views
 from training.recognition.peers import PixelNN, SiftMatcher, score, sift_descriptors
 from training.recognition.tradeoff import Point, budget_rows, keypoint_budgets
-
-from .test_robustness import u8, view, views
 
 RUN = ["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1", "--quiet",
        "--device", "cpu"]
