@@ -1,3 +1,4 @@
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -7,6 +8,7 @@ import torch
 from training.data.builtin import builtin_scene
 
 COIL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coil-20-32"
+needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
 
 
 @pytest.fixture(scope="session")

@@ -20,6 +20,7 @@ from ftorch.checkpoint import MAX_BYTES
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.space import record
+from tests.conftest import needs_ray
 from tests.end_to_end.test_hardening import RUN, exit_code, one_line
 from tests.recognition.test_learner import shape, train
 from tests.training.test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
@@ -59,6 +60,7 @@ def test_an_incremental_run_of_two_classes_reports_its_growth_as_not_available(t
 
 
 # -- 6. Ray addresses ------------------------------------------------------------------------------
+@needs_ray  # without Ray, reach_ray refuses before it tries the address
 def test_a_ray_address_that_does_not_answer_is_one_line_not_a_hang(tmp_path):
     done = subprocess.run([sys.executable, "-m", "training.run", *RUN, "--ray", "localhost:1", "--out", str(tmp_path / "r")],
                           capture_output=True, text=True, timeout=300)  # it hung for good before
@@ -79,6 +81,7 @@ def test_ray_not_installed_is_refused_among_the_input_checks(address, monkeypatc
         parallel.reach_ray(address)
 
 
+@needs_ray  # without Ray, reach_ray refuses before it tries the address
 def test_a_far_ray_address_times_out(monkeypatch):
     monkeypatch.setattr(parallel, "CONNECT_TIMEOUT", 0.2)
 

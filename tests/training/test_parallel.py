@@ -1,5 +1,4 @@
 """Independent tasks in local processes and on Ray: same results as one after another, failures retried once."""
-import importlib.util
 import json
 import re
 import shutil
@@ -11,6 +10,7 @@ import torch
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
+from tests.conftest import needs_ray
 from tests.training.test_protocol import check_events
 from training import run
 from training.cli.outputs import Ledger
@@ -94,7 +94,7 @@ def test_two_workers_write_the_sequential_report(tmp_path):
         check_events(tmp_path / "two" / "tensorboard" / f"fold{k}", report["folds"][k - 1], report["config"])
 
 
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
+@needs_ray
 def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
     import ray
 
@@ -108,7 +108,7 @@ def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
     assert json.loads((tmp_path / "ray" / "report.json").read_text())["folds"][1]["fold"] == 2
 
 
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
+@needs_ray
 def test_a_full_disk_on_the_cluster_ends_the_run_without_a_second_try():
     import errno
 
