@@ -239,14 +239,16 @@ def test_value_cache_follows_its_rule_equals_fresh_values_and_round_trips(shapes
     measured = ~np.isnan(first)
     np.testing.assert_allclose(first[measured], fresh[measured], rtol=0, atol=1e-6)
 
-    shared, saved, order = FeatureTable(), cache._table.array.copy(), list(cache._row)
+    order = cache.table().features  # the cache's rows in their order, and all they hold
+    shared, saved = FeatureTable(), cache.stored(order, range(len(env)))
     for state, known in ((json.loads(json.dumps(cache.state_dict())), None),
                          (cache.state_dict(shared), list(reversed(shared.features)))):
         if known is not None:  # written against a table the caller keeps, in another order
             state = {"features": [known.index(f) for f in shared.features], "values": state["values"]}
         other = ValueCache(len(env))
         other.load_state_dict(state, known)
-        assert list(other._row) == order and np.array_equal(other._table.array, saved, equal_nan=True)
+        assert other.table().features == order
+        assert np.array_equal(other.stored(order, range(len(env))), saved, equal_nan=True)
         assert np.array_equal(other.values(features, range(len(env)), compute), cache.values(features, range(len(env)), compute))
     assert not np.isnan(first).any()
     np.testing.assert_allclose(first, fresh, rtol=0, atol=1e-6)
