@@ -43,7 +43,7 @@ def _strict(text: str):
 
 
 def _coil():
-    from .conftest import COIL
+    from tests.conftest import COIL
     if not COIL.is_dir():
         pytest.skip(f"COIL data (../shared/data/coil-20-32) not found at {COIL}")
     (X, y), (X_test, _) = _split(coil_task(COIL, classes=4, views=12))
