@@ -69,7 +69,7 @@ def test_folder_task_and_its_errors(tmp_path):
         load_task("coil", None)
 
 
-def test_plym_task_has_eight_solids_with_fifteen_views_and_is_seeded():
+def test_plym_task_has_eight_solids_with_fifteen_views_and_is_seeded(rendered_afresh):
     a, b, c = plym_task(size=32, seed=1), plym_task(size=32, seed=1), plym_task(size=32, seed=2)
     assert a.classes() == list(OBJECTS) and len(a.images) == 8 * 15 == len(VIEWS) * len(OBJECTS)
     assert all(torch.equal(x, y) for x, y in zip(a.images, b.images))
