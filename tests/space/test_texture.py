@@ -1,9 +1,7 @@
 """The statistical texture primitive (7.2.1): histograms against scipy's Gaussian filter, values
-against a brute-force maximum, generation, the records of mixed sizes, JSON, packing, drawing, and
-a learner that needs it: images that differ by I -> I + b, which texels and edgels cannot tell apart."""
+against a brute-force maximum, generation, the records of mixed sizes, JSON, packing and drawing (a
+learner that needs it: tests/recognition/test_texture_learning.py)."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,10 +11,7 @@ from scipy.ndimage import gaussian_filter1d
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
 from ftorch.recognition.bayes import ClassNetwork
-from ftorch.recognition.candidates import THESIS_PRIMITIVES, CandidateGenerator, Method, Primitive, primitive_set
-from ftorch.recognition.environment import ImageSet
-from ftorch.recognition.inference import accuracy
-from ftorch.recognition.learner import DistinctiveFeatureLearner
+from ftorch.recognition.candidates import CandidateGenerator, Method
 from ftorch.recognition.packing import pack, unpack
 from ftorch.space.draw import draw_features
 from ftorch.space.evaluate import feature_values, values_only
@@ -140,16 +135,6 @@ def test_drawing_marks_a_texture_where_it_is_strongest(images, records):
     assert drawn.shape[1] == blank.shape[1] and (drawn[: blank.shape[0]] != blank).any(-1).sum() > 50
 
 
-def test_primitive_choices_are_validated_and_canonical():
-    assert primitive_set("edgel,texel") == THESIS_PRIMITIVES == primitive_set(["texel", "edgel"])
-    assert primitive_set("texture, texel") == (Primitive.TEXEL, Primitive.TEXTURE)
-    for bad in ("", "texel,texel", "colour", []):
-        with pytest.raises(InputError):
-            primitive_set(bad)
-    with pytest.raises(InputError):
-        DistinctiveFeatureLearner.thesis(primitives="blob")
-
-
 def test_the_thesis_primitives_draw_exactly_as_the_two_kinds_always_did(records):
     """Method 2 with texel and edgel pair: a texel where rand < 1/2, as before the choice existed."""
     env_records = records[0]
@@ -165,66 +150,6 @@ def test_the_thesis_primitives_draw_exactly_as_the_two_kinds_always_did(records)
                 for _ in range(40)]
     assert made == [f for f in expected if f is not None]
     assert {type(f).__name__ for f in made} == {"Texel", "Geometric"}
-
-
-def shifted_pairs(n: int) -> tuple[list, list]:
-    """Pairs of one random texture, bright (class 'bright') and 0.4 darker ('dark'): every texel and
-    edgel value is the same in both (3.4.4), the intensity distribution is not."""
-    images, labels = [], []
-    for k in range(n):
-        base = random_image(40, 40, seed=100 + k).numpy()
-        base = 0.45 * (base - base.min()) / (base.max() - base.min()) + 0.5
-        images += [base, base - 0.4]
-        labels += [{"bright"}, {"dark"}]
-    return images, labels
-
-
-def test_texture_tells_apart_what_texels_and_edgels_cannot():
-    images, labels = shifted_pairs(10)
-    env = ImageSet(images, labels)
-    results = {}
-    for primitives in ("texel,edgel", "texture"):
-        learner = DistinctiveFeatureLearner.thesis(seed=0, primitives=primitives, pseudocount=1.0)
-        for _ in range(6):
-            for i in range(12):
-                learner.learn(env, i)
-        results[primitives] = np.mean([accuracy(learner.recognize(env, j).recognized, env.labels[j], 2)
-                                       for j in range(12, 20)])
-        features = list(dict.fromkeys(learner.networks["bright"].features + learner.networks["dark"].features))
-        kinds = {type(f).__name__ for f in features}
-        if primitives == "texture":
-            assert kinds and all(k in ("Texture", "Conjunction", "Disjunction") for k in kinds)
-        else:
-            assert features and "Texture" not in kinds
-            # what the thesis's primitives measure is the same in both images of every pair (3.4.4):
-            # whatever they score comes from rounding, not from the classes
-            values = values_only(features, env.records(range(20))).numpy()
-            assert np.allclose(values[:, 0::2], values[:, 1::2], atol=1e-6)
-    assert results["texture"] == 1.0
-
-
-def test_the_learners_primitives_are_saved_and_an_older_state_means_the_thesis(tmp_path):
-    images, labels = shifted_pairs(3)
-    env = ImageSet(images, labels)
-    learner = DistinctiveFeatureLearner.thesis(seed=0, primitives="texture,texel")
-    for i in range(6):
-        learner.learn(env, i)
-    state = json.loads(json.dumps(learner.state_dict()))
-    assert state["primitives"] == ["texel", "texture"]
-    again = DistinctiveFeatureLearner.thesis()
-    again.load_state_dict(state)
-    assert again.settings.primitives == (Primitive.TEXEL, Primitive.TEXTURE) and again.candidates.primitives == again.settings.primitives
-    del state["primitives"]
-    older = DistinctiveFeatureLearner.thesis(primitives="texture")
-    older.load_state_dict(state)
-    assert older.settings.primitives == THESIS_PRIMITIVES == older.candidates.primitives
-
-
-def test_the_runner_refuses_an_unknown_primitive_in_one_line(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "training.run", "recognize", "--primitives", "texel,colour",
-                           "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2 and "colour" in done.stderr and "Traceback" not in done.stderr
-    assert not (tmp_path / "run").exists()
 
 
 def test_records_fields_follow_selection_and_device(records):

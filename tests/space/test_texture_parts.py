@@ -1,13 +1,13 @@
 """Texture parts of geometric compounds (3.5 with 7.2.1): the statistical texture placed relative to an
 oriented part, so that "a smooth patch left of this corner" can be learned. Sampling from the grid
 against its layout, values and locations against the slow oracle (ftorch.space.reference), invalid
-placements, generation, refusals, JSON, packing, drawing, class networks and a learner that needs it."""
+placements, generation, refusals, JSON, packing, drawing and class networks (a learner that needs them:
+tests/recognition/test_texture_learning.py)."""
 import math
 
 import numpy as np
 import pytest
 import torch
-from scipy.ndimage import gaussian_filter
 
 from ftorch import FeatureSpace
 from ftorch.errors import InputError
@@ -296,50 +296,3 @@ def test_a_network_holds_a_compound_with_a_texture_part_and_exports_through_pgmp
     net.validate()
     net.to_pgmpy().check_model()
     assert "f1_geometric_texel_texture" in net.to_bif() and "f2_geometric_texel_texture_edgel" in net.to_bif()
-
-
-def corner_scene(smooth_left: bool, rng) -> np.ndarray:
-    """A bright square (mirror-symmetric: each of its corners is the mirror image of another) on grey,
-    and below its lower right corner a noisy patch: a pixel-period checkerboard of random, smooth,
-    tapered amplitude, whose intensities spread from about 0.1 to 0.7 while the Gaussian derivatives
-    from sigma 1 on see next to nothing of it (it lies at the sampling frequency), so no texel or edgel
-    describes it. The smooth patch is the plain grey below the lower left corner. Mirrored for
-    'smooth right'. Shifted by up to 2 pixels, so that no grid phase is special, and 0.01 of noise
-    everywhere, so that no two views are alike to the last bit."""
-    img = np.full((48, 48), 0.4)
-    dx, dy = (int(v) for v in rng.integers(-2, 3, 2))
-    img[6 + dy : 18 + dy, 18 + dx : 30 + dx] = 0.85
-    k = np.arange(12)
-    taper = np.outer(*(2 * [np.sin(np.pi * (k + 0.5) / 12) ** 0.5]))
-    amplitude = 0.3 * taper * (1 + 0.3 * np.clip(5 * gaussian_filter(rng.standard_normal((12, 12)), 3), -1, 1))
-    img[22 + dy : 34 + dy, 25 + dx : 37 + dx] += np.where((k[:, None] + k[None, :]) % 2 == 0, 1, -1) * amplitude
-    img = img if smooth_left else img[:, ::-1]
-    return img + rng.uniform(-0.01, 0.01, img.shape)
-
-
-def corner_task(n: int, seed: int) -> tuple[list, list]:
-    rng = np.random.default_rng(seed)
-    return ([corner_scene(k % 2 == 0, rng) for k in range(n)],
-            ["smooth left" if k % 2 == 0 else "smooth right" for k in range(n)])
-
-
-def test_a_learner_learns_which_side_of_the_corner_the_smooth_patch_lies():
-    """Both classes hold the same square and both patches; only the side of the smooth patch relative to
-    the corner differs (a mirror image), so neither a texture nor the corner separates them, and the
-    checkerboard is invisible to texels and edgels. With texture parts the learner (the defaults and
-    ``texture_parts``, seed 0, stage 0 and two expert stages) answers 40 test views nearly always right,
-    its networks holding compounds with a texture part; the same learner without them, and textures
-    alone, stay far below. (Measured on seeds 0-6: accuracy .88-.98 and top-1 .98-1 with texture parts,
-    .66-.76 and .70-.80 with textures alone; .44-.58 and .43-.50 with texels and edgels on seeds 0-2.)"""
-    train, labels = corner_task(24, 0)
-    test, truth = corner_task(40, 1)
-    learner = DistinctiveFeatureLearner(seed=0, texture_parts=True).fit(train, labels, stages=2, max_cycles=10)
-    assert learner.score(test, truth) >= 0.9 and learner.score(test, truth, "top-1") >= 0.95
-    held = [f for net in learner.networks.values() for f in net.features]
-    assert any(isinstance(f, Geometric) and any(p.kind is PartKind.TEXTURE for p in f.parts) for f in held)
-    without = DistinctiveFeatureLearner(seed=0).fit(train, labels, stages=2, max_cycles=10)
-    assert without.score(test, truth) <= 0.8
-    assert not any(isinstance(f, Geometric) and any(p.kind is PartKind.TEXTURE for p in f.parts)
-                   for net in without.networks.values() for f in net.features)
-    alone = DistinctiveFeatureLearner(seed=0, primitives="texture").fit(train, labels, stages=2, max_cycles=10)
-    assert alone.score(test, truth) <= 0.8
