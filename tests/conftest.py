@@ -7,6 +7,7 @@ import torch
 
 from training.data import datasets, plym
 from training.data.builtin import builtin_scene
+from training.data.datasets import Task, plym_task
 
 COIL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coil-20-32"
 needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e \".[distributed]\")")
@@ -42,6 +43,14 @@ def rendered_afresh(monkeypatch):
 @pytest.fixture(scope="session")
 def scene() -> np.ndarray:
     return builtin_scene(128)
+
+
+@pytest.fixture(scope="session")
+def small_task() -> Task:
+    """Four Plym solids at 48 pixels (the folds of tests/training/test_protocol.py and the end-to-end tests)."""
+    full = plym_task(size=48, seed=0)
+    keep = [i for i, label in enumerate(full.labels) if label in ("con6", "cube", "cycu", "cyl3")]
+    return Task("plym4", *([getattr(full, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
 
 
 @pytest.fixture(scope="session")

@@ -21,7 +21,7 @@ from ftorch.recognition.bayes import ClassNetwork
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from tests.recognition.test_learner import shape, train
-from tests.training.test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
+from tests.training.test_protocol import make_fold
 from training import run
 from training.cli import outputs
 from training.data import coil

@@ -103,14 +103,6 @@ def test_a_link_or_special_file_where_the_run_keeps_its_lock_or_ledger_is_refuse
 
 
 # -- 2. a folder holding another command's run ---------------------------------------------------
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory):
-    """A finished recognize run (one fold) and every file in it."""
-    out = tmp_path_factory.mktemp("finished") / "run"
-    assert run.main([*RUN, "--out", str(out)]) == 0
-    return out, files(out)
-
-
 @pytest.mark.parametrize("argv", [
     ["tradeoff", "--runs", "OTHER", "--overwrite"],
     ["tradeoff", "--runs", "OTHER"],
@@ -121,8 +113,8 @@ def finished(tmp_path_factory):
     ["robustness", "--run", "OTHER", "--device", "cpu"],
     ["salient", "--device", "cpu"],
 ], ids=["tradeoff-overwrite", "tradeoff", "incremental", "grasp", "evaluate", "robustness", "salient"])
-def test_a_folder_holding_another_commands_run_is_refused_with_or_without_overwrite(argv, finished, tmp_path, capsys):
-    out, before = finished
+def test_a_folder_holding_another_commands_run_is_refused_with_or_without_overwrite(argv, finished_run, tmp_path, capsys):
+    out, before = finished_run
     other = tmp_path / "other"
     shutil.copytree(out, other)
     data = tmp_path / "data"
@@ -145,9 +137,9 @@ def test_overwrite_still_replaces_a_run_of_the_same_command(tmp_path, capsys):
     assert (out / "report.json").is_file()
 
 
-def test_a_folder_without_a_ledger_is_known_by_its_report(finished, tmp_path, capsys):
+def test_a_folder_without_a_ledger_is_known_by_its_report(finished_run, tmp_path, capsys):
     """A run written before ledgers named their command: its report.json says which it was."""
-    out, _ = finished
+    out, _ = finished_run
     old = tmp_path / "old"
     shutil.copytree(out, old)
     (old / outputs.LEDGER).unlink()
@@ -183,8 +175,8 @@ def test_an_output_folder_inside_an_input_folder_or_holding_one_is_refused(where
     assert files(data) == before and not (data / "zrun").exists() and not (data / "tb").exists()
 
 
-def test_robustness_and_evaluate_write_nothing_into_the_data(finished, tmp_path, capsys):
-    out, _ = finished
+def test_robustness_and_evaluate_write_nothing_into_the_data(finished_run, tmp_path, capsys):
+    out, _ = finished_run
     data = _folder_data(tmp_path / "data")
     before = files(data)
     capsys.readouterr()
@@ -279,8 +271,8 @@ def test_an_image_whose_values_cannot_hold_its_contrast_is_refused_in_one_line()
 
 
 # -- 6. tradeoff compares runs on the same splits only ---------------------------------------------
-def test_tradeoff_refuses_runs_of_other_folds_or_seeds(finished, tmp_path, capsys):
-    out, _ = finished
+def test_tradeoff_refuses_runs_of_other_folds_or_seeds(finished_run, tmp_path, capsys):
+    out, _ = finished_run
     two = tmp_path / "two"
     shutil.copytree(out, two)
     report = json.loads((two / "report.json").read_text())

@@ -23,7 +23,7 @@ from ftorch.space import record
 from tests.conftest import needs_ray
 from tests.end_to_end.test_hardening import RUN, exit_code, one_line
 from tests.recognition.test_learner import shape, train
-from tests.training.test_protocol import make_fold, small_task  # noqa: F401 (a fixture)
+from tests.training.test_protocol import make_fold
 from training import bench, run
 from training.cli import outputs, parallel
 from training.data.datasets import load_task, plym_task

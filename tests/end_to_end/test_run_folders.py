@@ -3,6 +3,7 @@ share a folder, workers never outlive a killed runner, and a full disk is one li
 import errno
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -30,16 +31,8 @@ def _views(folder, names, size=48):
         cv2.imwrite(str(folder / name), np.random.default_rng(n).integers(0, 255, (size, size), dtype=np.uint8))
 
 
-@pytest.fixture(scope="module")
-def completed(tmp_path_factory):
-    """A completed run's folder and every file in it."""
-    out = tmp_path_factory.mktemp("completed") / "ow"
-    assert run.main([*RUN, "--out", str(out)]) == 0
-    return out, files(out)
-
-
-def test_a_bad_input_with_overwrite_loses_nothing(completed, tmp_path, capsys, monkeypatch):
-    out, before = completed
+def test_a_bad_input_with_overwrite_loses_nothing(finished_run, tmp_path, capsys, monkeypatch):
+    out, before = finished_run
     assert {"report.json", "report.md", "curves.png", "fold1/learner.json", "fold1/checkpoint.json"} <= set(before)
     capsys.readouterr()
     # a typo in --data
@@ -96,11 +89,11 @@ def test_overwrite_removes_only_what_a_run_recorded(tmp_path, capsys):
     assert victim.read_text() == "keep" and all((home / name).read_text() == text for name, text in mine.items())
 
 
-def test_a_resumed_finished_run_logs_nothing_again(completed, tmp_path):
+def test_a_resumed_finished_run_logs_nothing_again(finished_run, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     out = tmp_path / "again"
-    assert run.main([*RUN, "--out", str(out)]) == 0
+    shutil.copytree(finished_run[0], out)
     assert run.main([*RUN, "--out", str(out), "--resume"]) == 0
     events = EventAccumulator(str(out / "tensorboard" / "fold1"), size_guidance={"images": 0})
     events.Reload()

@@ -21,20 +21,12 @@ from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.stages import ClassAdded, Progress, next_target
 from training import run
-from training.data.datasets import Task, plym_task
+from training.data.datasets import Task
 from training.plots import figure_rgb, fold_curves_figure
 from training.recognition.protocol import Fold, FoldState, RunConfig
 from training.recognition.report import growth, growth_over_seeds, seed_study, write_markdown
 
 CONFIG = RunConfig("plym4", seed=0, learner=LearnerSettings.thesis())
-
-
-@pytest.fixture(scope="module")
-def small_task() -> Task:
-    """Four Plym solids at 48 pixels."""
-    full = plym_task(size=48, seed=0)
-    keep = [i for i, label in enumerate(full.labels) if label in ("con6", "cube", "cycu", "cyl3")]
-    return Task("plym4", *([getattr(full, k)[i] for i in keep] for k in ("images", "labels", "names", "positions")))
 
 
 def make_fold(task: Task, folder, k: int = 1, incremental: bool = False) -> Fold:
