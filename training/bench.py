@@ -75,7 +75,7 @@ from training.cli.outputs import writable_file
 from training.data.builtin import builtin_scene
 from training.data.datasets import load_task
 
-TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/test_scale_space.py)
+TOLERANCE = 2e-6  # of each level's largest response, interior pixels (tests/space/test_scale_space.py)
 
 
 class Benchmark(StrEnum):
