@@ -69,7 +69,7 @@ def test_no_seed_with_poor_haptic_grasps_gives_null_and_says_so(tmp_path):
     for mode in ("offline", "online"):
         assert any(line.startswith(f"{mode}: poor-grasp reduction not available (none of the 3 seeds had poor "
                                    "haptic grasps to reduce)") for line in lines)
-    write_json(tmp_path / "report.json", {"seeds": study.to_dict()})
+    write_json(tmp_path / "report.json", {"seeds": study.to_json()})
 
     def refuse(constant):
         raise ValueError(f"{constant} is not JSON")

@@ -17,13 +17,14 @@ from training.cli.outputs import Command, RunFolder, apart
 from training.commands.recognize import task_options
 from training.data.datasets import Task, load_task, reduced
 from training.recognition.protocol import confusion, feature_block, image_set, load_learner, test_block
-from training.recognition.records import ConfusionRow, FeatureBlock, Record, TestBlock
+from training.recognition.records import ConfusionRow, FeatureBlock, TestBlock
 from training.recognition.report import (
     COLUMNS,
     ambiguity_table,
     confusion_table,
     write_json,
 )
+from training.records import Record
 
 SIDE_TOLERANCE = math.sqrt(2)  # one step of the half-octave scale space (DESIGN.md)
 

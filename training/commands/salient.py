@@ -16,7 +16,7 @@ from training.cli.devices import resolve_device
 from training.cli.jobs import device_options
 from training.cli.outputs import Command, RunFolder
 from training.data.builtin import builtin_scene
-from training.recognition.records import Record
+from training.records import Record
 
 
 def salient_command(args) -> int:

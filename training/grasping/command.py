@@ -193,7 +193,7 @@ def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
     if not isinstance(done, bool) or not isinstance(state, dict) or (done and not isinstance(entry, dict)):
         raise InputError(f"{path}: damaged grasp fold checkpoint (no state, or an ended fold without its report entry)")
     try:
-        return StoredFold(done, state, FoldEntry.from_dict(entry) if done else None)
+        return StoredFold(done, state, FoldEntry.from_json(entry) if done else None)
     except DAMAGED as err:
         raise InputError(f"{path}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
 
@@ -201,7 +201,7 @@ def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
 def _save(path: Path, config: dict, fold: GraspFold, entry: FoldEntry | None = None) -> None:
     """A fold's checkpoint: its state after the last epoch, and once it has ended (``entry``), its report entry."""
     save_checkpoint(path, FOLD_KIND, {"config": config, "fold": fold.k, "done": entry is not None,
-                                      "state": fold.state_dict(), "entry": None if entry is None else entry.to_dict()})
+                                      "state": fold.state_dict(), "entry": None if entry is None else entry.to_json()})
 
 
 def _fold_name(k: int, mode: Mode) -> str:
@@ -284,7 +284,7 @@ def seed_task(job: SeedJob) -> GraspReport:
     report = GraspReport(config, str(device), machine(device), time.perf_counter() - start, results(offline),
                          {mode: results(evaluations[mode]) for mode in config.modes()} if config.online else None,
                          folds, ["errors.png", "grasps.png", *figures])
-    write_json(out / "report.json", report.to_dict())
+    write_json(out / "report.json", report.to_json())
     write_markdown(out / "report.md", report)
     return report
 
@@ -317,7 +317,7 @@ def _grasp(args, folder: RunFolder, start: float) -> int:
         folder.ledger.files(out / "reductions.png")
         save_rgb(out / "reductions.png", figure_rgb(reduction_figure(study, f"{args.experiment}, seeds {seeds[0]}-{seeds[-1]}")))
         report = replace(report, seconds=time.perf_counter() - start, figures=[*report.figures, "reductions.png"], seeds=study)
-        write_json(out / "report.json", report.to_dict())
+        write_json(out / "report.json", report.to_json())
         write_markdown(out / "report.md", report)
     _summarize(args, report, start, out, logdir)
     return 0

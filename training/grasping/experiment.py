@@ -209,12 +209,12 @@ class GraspFold:
         """JSON-ready: what training goes on from (module doc): the epoch log and predictions, the
         presentation order's generator and the learner's training state."""
         return FoldState(self.epochs, self.predictions, encode_array(self.order.get_state().numpy().astype(np.float64)),
-                         self.learner.state_dict()).to_dict()
+                         self.learner.state_dict()).to_json()
 
     def load_state_dict(self, state: dict) -> None:
         """Restore :meth:`state_dict` into this fold, built as the saved one was; ValueError (or another
         of ``ftorch.checkpoint.DAMAGED``) for a damaged state."""
-        stored = FoldState.from_dict(state)
+        stored = FoldState.from_json(state)
         if len(stored.epochs) != len(stored.predictions):
             raise ValueError("the epoch log and the predictions must be lists of one entry per epoch")
         if [e.epoch for e in stored.epochs] != list(range(len(stored.epochs))):

@@ -1,89 +1,19 @@
 """The typed records of a grasp run (6.5): its configuration, the job of one seed, and the blocks of its
-checkpoints and report. They become JSON only at the file boundary (:meth:`Record.to_dict`) and are
-read back from it (:meth:`Record.from_dict`: a fold's checkpoint on ``--resume``), field by field in
-the order the files have always had, so report.json and checkpoint.json keep their bytes.
+checkpoints and report. They become JSON only at the file boundary (:class:`training.records.Record`,
+field by field in the order the files have always had, so report.json and checkpoint.json keep their
+bytes) and are read back from it (a fold's checkpoint on ``--resume``) strictly: a key they do not
+know is refused (:class:`~training.records.StrictRecord`).
 """
 from __future__ import annotations
 
 import math
-import types
-from dataclasses import dataclass, field, fields
-from enum import Enum, StrEnum
-from typing import Union, get_args, get_origin, get_type_hints
+from dataclasses import dataclass, field
+from enum import StrEnum
 
 from ftorch.grasp.learner import GraspLearner
 from ftorch.grasp.settings import POOR_MU0, GraspSettings
 from training.cli.outputs import Ledger
-
-FLAT = {"flat": True}  # a field whose record's fields are written in line with its owner's
-OPTIONAL = {"optional": True}  # a field left out of the file where it is None
-
-
-class Record:
-    """A dataclass written to and read from JSON by its field types: records nested (in lists, in dicts by
-    name, or None), enums by their value; ``FLAT`` and ``OPTIONAL`` fields as their metadata say."""
-
-    def to_dict(self) -> dict:
-        """JSON-ready, in field order."""
-        out = {}
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.metadata.get("flat"):
-                out.update(value.to_dict())
-            elif value is not None or not f.metadata.get("optional"):
-                out[f.name] = _to_json(value)
-        return out
-
-    @classmethod
-    def from_dict(cls, data: dict):
-        """The record :meth:`to_dict` wrote; ValueError or TypeError for a key it does not know or lacks."""
-        if not isinstance(data, dict):
-            raise TypeError(f"{cls.__name__}: expected an object, got {type(data).__name__}")
-        hints, values, known = get_type_hints(cls), {}, set()
-        for f in fields(cls):
-            if f.metadata.get("flat"):
-                values[f.name] = hints[f.name].from_dict({k: data[k] for k in _names(hints[f.name]) if k in data})
-                known |= _names(hints[f.name])
-            elif f.name in data:
-                values[f.name], known = _from_json(hints[f.name], data[f.name]), known | {f.name}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"{cls.__name__}: unknown fields {sorted(unknown)}")
-        return cls(**values)
-
-
-def _names(record: type) -> set[str]:
-    """The keys a record writes (its flat fields' keys in place of their own)."""
-    hints = get_type_hints(record)
-    return set().union(*(_names(hints[f.name]) if f.metadata.get("flat") else {f.name} for f in fields(record)))
-
-
-def _to_json(value):
-    if isinstance(value, Enum):
-        return value.value
-    if isinstance(value, Record):
-        return value.to_dict()
-    if isinstance(value, list):
-        return [_to_json(v) for v in value]
-    if isinstance(value, dict):
-        return {_to_json(k): _to_json(v) for k, v in value.items()}
-    return value
-
-
-def _from_json(hint, value):
-    """``value`` read from JSON as the type ``hint`` says."""
-    origin, args = get_origin(hint), get_args(hint)
-    if origin in (Union, types.UnionType):
-        return None if value is None else _from_json(next(a for a in args if a is not type(None)), value)
-    if origin is list:
-        return [_from_json(args[0], v) for v in value]
-    if origin is dict:
-        return {_from_json(args[0], k): _from_json(args[1], v) for k, v in value.items()}
-    if isinstance(hint, type) and issubclass(hint, Record):
-        return hint.from_dict(value)
-    if isinstance(hint, type) and issubclass(hint, Enum):
-        return hint(value)
-    return value
+from training.records import INLINE, OPTIONAL, StrictRecord
 
 
 class Mode(StrEnum):
@@ -94,7 +24,7 @@ class Mode(StrEnum):
 
 
 @dataclass(frozen=True)
-class RunConfig(Record):
+class RunConfig(StrictRecord):
     """A grasp run's settings, as its report and every fold checkpoint record them (a fold resumes only
     under the same); ``device`` as asked until the seed's job resolves it where it runs."""
 
@@ -122,7 +52,7 @@ class RunConfig(Record):
 
     def fold_config(self, mode: Mode) -> dict:
         """What a fold's checkpoint records: these settings and the fold's mode."""
-        return {**self.to_dict(), "mode": str(mode)}
+        return {**self.to_json(), "mode": str(mode)}
 
     def modes(self) -> tuple[Mode, ...]:
         """The modes each fold runs in: off-line, and on-line with ``online``."""
@@ -143,7 +73,7 @@ class SeedJob:
 
 
 @dataclass
-class Epoch(Record):
+class Epoch(StrictRecord):
     """A training epoch in the report (alg. 6.2's outcomes counted, mistakes and poor grasps as fractions,
     each set's features and features sampled so far)."""
 
@@ -160,7 +90,7 @@ class Epoch(Record):
 
 
 @dataclass
-class Predictions(Record):
+class Predictions(StrictRecord):
     """What the learner predicted before each training grasp's outcome in an epoch (TensorBoard's):
     orientation error and E[mu_0] (None: no prediction), measured mu_0 (None: no equilibrium), fingers."""
 
@@ -171,7 +101,7 @@ class Predictions(Record):
 
 
 @dataclass
-class FoldState(Record):
+class FoldState(StrictRecord):
     """What a fold's training goes on from: the epoch log and predictions, the presentation order's
     generator and the learner's training state (both as ftorch writes them)."""
 
@@ -182,7 +112,7 @@ class FoldState(Record):
 
 
 @dataclass
-class Grasp(Record):
+class Grasp(StrictRecord):
     """A test grasp of a held-out object: its kind and trial index, the outcome (mu0 None: no
     equilibrium) and, for a cued grasp, whether a recommendation started it."""
 
@@ -198,7 +128,7 @@ class Grasp(Record):
 
 
 @dataclass
-class FoldTests(Record):
+class FoldTests(StrictRecord):
     """A fold's tests: orientation errors of the test grasps (None: no prediction), and each held-out
     object grasped haptic-only and cued."""
 
@@ -208,7 +138,7 @@ class FoldTests(Record):
 
 
 @dataclass
-class Summary(Record):
+class Summary(StrictRecord):
     """median, mean and 90th percentile of n values (None where n is 0)."""
 
     median: float | None
@@ -218,7 +148,7 @@ class Summary(Record):
 
 
 @dataclass
-class ErrorSummary(Record):
+class ErrorSummary(StrictRecord):
     """Orientation errors in degrees: median and 90th percentile of n, unpredicted ones counted."""
 
     median: float | None
@@ -228,7 +158,7 @@ class ErrorSummary(Record):
 
 
 @dataclass
-class Sides(Record):
+class Sides(StrictRecord):
     """One summary of haptic-only and one of cued grasps."""
 
     haptic: Summary
@@ -236,7 +166,7 @@ class Sides(Record):
 
 
 @dataclass
-class PoorGrasps(Record):
+class PoorGrasps(StrictRecord):
     """The fractions of poor grasps (mu_0 > ``split_mu0``), haptic-only and cued, and the reduction
     (None: no poor haptic grasp to reduce)."""
 
@@ -247,7 +177,7 @@ class PoorGrasps(Record):
 
 
 @dataclass
-class Results(Record):
+class Results(StrictRecord):
     """The headline of a report or a fold, pooled over tests."""
 
     orientation_error_deg: ErrorSummary
@@ -259,20 +189,20 @@ class Results(Record):
 
 
 @dataclass
-class FoldEntry(Record):
+class FoldEntry(StrictRecord):
     """A fold in the report: its epochs, results and tests, and every learned feature with its model
     and quality split (JSON as ftorch writes them, by finger count)."""
 
     fold: int
     mode: Mode
     epochs: list[Epoch]
-    results: Results = field(metadata=FLAT)
+    results: Results = field(metadata=INLINE)
     tests: FoldTests
     features: dict
 
 
 @dataclass
-class PoorShares(Record):
+class PoorShares(StrictRecord):
     """A seed's poor-grasp fractions and reduction in a seed study."""
 
     haptic: float
@@ -285,7 +215,7 @@ class PoorShares(Record):
 
 
 @dataclass
-class OnlineRun(Record):
+class OnlineRun(StrictRecord):
     """A seed's on-line results in a seed study."""
 
     poor_grasp_fraction: PoorShares
@@ -293,7 +223,7 @@ class OnlineRun(Record):
 
 
 @dataclass
-class SeedRun(Record):
+class SeedRun(StrictRecord):
     """One seed in a seed study."""
 
     seed: int
@@ -305,7 +235,7 @@ class SeedRun(Record):
 
 
 @dataclass
-class Spread(Record):
+class Spread(StrictRecord):
     """mean, sd, worst value and its seed over the ``n`` seeds that have a value (None where none has);
     ``not_available``: the seeds left out."""
 
@@ -318,7 +248,7 @@ class Spread(Record):
 
 
 @dataclass
-class SeedStudy(Record):
+class SeedStudy(StrictRecord):
     """The ``seeds`` block: each seed, and the spreads of the poor-grasp reductions, the cued poor-grasp
     fractions and the median orientation errors, per mode."""
 
@@ -329,14 +259,14 @@ class SeedStudy(Record):
 
 
 @dataclass
-class GraspReport(Record):
+class GraspReport(StrictRecord):
     """A seed's report.json (with ``seeds`` for the first seed of a study)."""
 
     config: RunConfig
     device: str
     machine: dict
     seconds: float
-    results: Results = field(metadata=FLAT)
+    results: Results = field(metadata=INLINE)
     online: dict[Mode, Results] | None = field(default=None, metadata=OPTIONAL)
     folds: list[FoldEntry] = field(default_factory=list)
     figures: list[str] = field(default_factory=list)

@@ -35,8 +35,9 @@ from ftorch.space.features import unpack_features
 from ftorch.space.record import FeatureSpace, ImageRecords
 from training.data.augment import augment
 from training.data.datasets import Task, load_task
+from training.records import OPTIONAL, Record
 
-from .records import OPTIONAL, ConfusionRow, FeatureBlock, FoldEntry, Record, StageEntry, TestBlock
+from .records import ConfusionRow, FeatureBlock, FoldEntry, StageEntry, TestBlock
 from .schema import SCHEMA, migrated_config
 
 FOLD_KIND = "fold"

@@ -4,97 +4,19 @@ the features sampled (figure 5.19), the peers on the same splits, and the report
 robustness and tradeoff benchmarks, evaluate and salient build their files from the same base.
 
 Decision: the runner builds these records and every reader takes them; they become dicts only at
-the JSON boundary, in one generic :meth:`Record.to_json` / :meth:`Record.from_json` driven by the
-fields, so a misspelt name fails at import or in a type check, never in a report. The JSON keys are
-the field names in field order (a field's ``key`` metadata where the name is a Python keyword or
-differs), so report.json keeps exactly the bytes it had as nested dicts. A field marked
-``optional`` is left out where it is None (a block written before the figure existed lacks it); a
-field marked ``inline`` writes its value's keys in line (a stage's own fields, :class:`Stage`).
+the JSON boundary (:class:`training.records.Record`), so report.json keeps exactly the bytes it had
+as nested dicts; a stage entry writes its stage's own fields in line (:class:`StageEntry`).
 """
 from __future__ import annotations
 
 import math
-import types
-import typing
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-from ftorch.recognition.stages import ClassAdded, Cycle, Stage
-
-STAGE_RECORDS = (Stage, ClassAdded, Cycle)  # the schedule's records: their own to_dict / from_dict
-
-OPTIONAL = {"optional": True}  # left out of the JSON where None
-INLINE = {"inline": True}  # the value's keys written in line
-
-
-def key(name: str, **more) -> dict:
-    """Field metadata: the JSON key ``name`` where it differs from the field's name."""
-    return {"key": name, **more}
-
-
-class Record:
-    """A dataclass written as one JSON object (module doc)."""
-
-    def to_json(self) -> dict:
-        out: dict = {}
-        for f in fields(self):  # type: ignore[arg-type]
-            value = getattr(self, f.name)
-            if value is None and f.metadata.get("optional"):
-                continue
-            if f.metadata.get("inline"):
-                out.update(_written(value))
-            else:
-                out[f.metadata.get("key", f.name)] = _written(value)
-        return out
-
-    @classmethod
-    def from_json(cls, data: dict):
-        """The record from its JSON object (extra keys are ignored; a missing optional one is None)."""
-        hints = typing.get_type_hints(cls)
-        names = {f.metadata.get("key", f.name) for f in fields(cls)}  # type: ignore[arg-type]
-        values = {}
-        for f in fields(cls):  # type: ignore[arg-type]
-            name = f.metadata.get("key", f.name)
-            if f.metadata.get("inline"):  # a record or stage: its keys; a dict: the keys no other field has
-                hint = hints[f.name]
-                values[f.name] = _read(hint, {k: v for k, v in data.items() if k not in names} if typing.get_origin(hint) is dict
-                                       else data)
-            elif name in data:
-                values[f.name] = _read(hints[f.name], data[name])
-            elif not f.metadata.get("optional"):
-                raise KeyError(name)
-        return cls(**values)
-
-
-def _written(value):
-    """``value`` as JSON holds it: records and stage entries as objects, the rest as it is."""
-    if isinstance(value, Record):
-        return value.to_json()
-    if isinstance(value, STAGE_RECORDS):
-        return value.to_dict()
-    if isinstance(value, dict):
-        return {k: _written(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_written(v) for v in value]
-    return value
-
-
-def _read(hint, value):
-    """``value`` read from JSON as the type ``hint`` says (records, lists and dicts of them, optional)."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        return None if value is None else _read(next(a for a in args if a is not type(None)), value)
-    if origin is list and args:
-        return [_read(args[0], v) for v in value]
-    if origin is dict and len(args) == 2:
-        return {k: _read(args[1], v) for k, v in value.items()}
-    if isinstance(hint, type) and issubclass(hint, Record):
-        return hint.from_json(value)
-    if hint in STAGE_RECORDS:
-        return hint.from_dict(value)
-    return value
+from ftorch.recognition.stages import ClassAdded, Stage
+from training.records import INLINE, OPTIONAL, Record, key
 
 
 @dataclass(kw_only=True)

@@ -22,13 +22,14 @@ from ftorch.recognition.packing import pack
 from ftorch.space.draw import grid, panel, save_rgb, titled
 from ftorch.space.features import Geometric
 from ftorch.space.record import FeatureSpace
+from training.records import INLINE, OPTIONAL, Record, key
 
 from ..cli.outputs import Ledger
 from ..data.datasets import Task
 from ..data.perturb import KINDS, perturb, save_examples
 from .peers import PixelNN, SiftMatcher, score, score_ranked
 from .protocol import test_block
-from .records import INLINE, OPTIONAL, PeerFold, PeerMeans, PeerScores, Record, SplitPeers, TestBlock, key, mean_block
+from .records import PeerFold, PeerMeans, PeerScores, SplitPeers, TestBlock, mean_block
 from .report import cell
 
 SETS = ("clean", *KINDS)

@@ -38,11 +38,12 @@ from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.packing import pack, unpack
 from ftorch.space.record import FeatureSpace
+from training.records import OPTIONAL, Record
 
 from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score, score_ranked, sift_descriptors
 from .protocol import RecordedTask, RunConfig, same_images, test_block
-from .records import OPTIONAL, Record, Report, TestBlock
+from .records import Report, TestBlock
 from .robustness import fold_sets, views
 from .schema import migrated_config
 
