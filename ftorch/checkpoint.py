@@ -20,6 +20,9 @@ file in the same folder, flushed and fsynced, then renamed over the target: a cr
 either the old checkpoint or the new one, never half of one; only a regular file is renamed
 over (:func:`write_target`). Reading refuses, with one line
 naming the file, a missing, truncated, foreign, other-kind or newer checkpoint.
+What a checkpoint holds has its own schema version (``"schema"``: the learners' states, the
+runs' checkpoint.json and report.json), apart from this format's; :func:`schema_of` checks it the
+same way for all.
 """
 from __future__ import annotations
 
@@ -38,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, NewerSchema
 
 FORMAT = "ftorch"
 VERSION = 4
@@ -363,3 +366,14 @@ def load_checkpoint(path, kind: str | tuple[str, ...]) -> dict:
         raise InputError(f"{path}: checkpoint version {data.get('version')!r}, this ftorch reads versions "
                          f"{READS[0]} to {READS[-1]}")
     return data
+
+
+def schema_of(version, what: str, newest: int) -> int:
+    """A file's schema ``version`` (None: written before schemas were numbered, 0), checked: ValueError for
+    no version number, NewerSchema (one line) for one newer than ``newest``, which this ftorch reads."""
+    version = 0 if version is None else version
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise ValueError(f"schema {version!r} is not a version number")
+    if version > newest:
+        raise NewerSchema(f"{what} of schema {version}, newer than this ftorch reads ({newest}): update ftorch to read it")
+    return version

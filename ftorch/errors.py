@@ -7,3 +7,7 @@ class InputError(ValueError):
 
 class NotFittedError(InputError, AttributeError):
     """A learner asked to answer, or to be saved for answering, before it has learned any class."""
+
+
+class NewerSchema(InputError):
+    """A file of a schema newer than this ftorch reads (:func:`ftorch.checkpoint.schema_of`)."""

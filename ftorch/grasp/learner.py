@@ -61,7 +61,7 @@ import numpy as np
 import torch
 
 from ..checkpoint import DAMAGED, load_checkpoint, save_checkpoint
-from ..errors import InputError, NotFittedError
+from ..errors import InputError, NewerSchema, NotFittedError
 from ..settings import as_device
 from ..space.features import Feature
 from ..space.generate import expand_geometric, random_edgel_pair
@@ -228,7 +228,9 @@ class GraspLearner:
         data = load_checkpoint(path, KIND)
         learner = cls(device=device)
         try:
-            learner.load_state_dict({k: data[k] for k in ("settings", "sets", "features")})
+            learner.load_state_dict({**{k: data[k] for k in ("settings", "sets", "features")}, "schema": data.get("schema")})
+        except NewerSchema as err:  # a refusal rather than damage
+            raise NewerSchema(f"{path}: {err}") from None
         except DAMAGED as err:
             raise InputError(f"{path}: damaged grasp learner ({type(err).__name__}: {err})") from None
         return learner

@@ -6,6 +6,12 @@ learning reads: the instance lists (each row's image name, values, orientations 
 exactly; the rows of each image's records), the rows each model was fitted on, the features' birth
 and last use, the grasp and sampling counts, the seed and the generator's state. The images are not
 held: restoring a training state takes their records by name.
+
+Schema versions (``"schema"`` in the state; a state without it is version 0, and a newer one is
+refused in one line, :func:`~ftorch.checkpoint.schema_of`):
+
+- 0: states written before the schema was numbered; they read as they are (no migration).
+- 1: the same contents, numbered.
 """
 from __future__ import annotations
 
@@ -15,7 +21,7 @@ from typing import Callable, Hashable
 import numpy as np
 import torch
 
-from ..checkpoint import decode_array, encode_array, stored_position
+from ..checkpoint import decode_array, encode_array, schema_of, stored_position
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
 from ..space.record import ImageRecords
@@ -23,6 +29,7 @@ from .feature_set import GraspFeatureSet
 from .models import FeatureModel
 from .settings import GraspSettings
 
+SCHEMA = 1
 KIND = "grasp-learner"
 FINGERS = (2, 3)
 GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
@@ -105,17 +112,20 @@ class LearnerState:
 def learner_state(settings: GraspSettings, sets: dict[int, GraspFeatureSet], seed: int | None = None,
                   generator: torch.Generator | None = None) -> dict:
     """JSON-ready: the settings and the sets (:func:`set_state`); with the ``seed`` and the ``generator``
-    a training state, else a recommending one."""
+    a training state, else a recommending one; its schema last."""
     table, training = FeatureTable(), generator is not None
     state: dict[str, object] = {"settings": settings.to_dict(), "sets": [set_state(s, table, training) for s in sets.values()],
                                 "features": table.pack()}
     if generator is not None:
         state.update({"seed": seed, "generator": encode_array(generator.get_state().numpy().astype(np.float64))})
+    state["schema"] = SCHEMA
     return state
 
 
 def restore_learner(state: dict, records: Records | None = None) -> LearnerState:
-    """What :func:`learner_state` wrote; a training state needs ``records`` (:func:`restore_set`)."""
+    """What :func:`learner_state` wrote (of any schema up to :data:`SCHEMA`; NewerSchema for a newer one); a
+    training state needs ``records`` (:func:`restore_set`)."""
+    schema_of(state.get("schema"), "a grasp learner state", SCHEMA)
     settings = GraspSettings(**state["settings"])
     training = "generator" in state
     seed = int(state["seed"]) if training else None

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ..checkpoint import decode_array, encode_array, stored_position
+from ..checkpoint import decode_array, encode_array, schema_of, stored_position
 from ..errors import InputError
 from ..space.features import Feature, FeatureTable, unpack_features
 from .bayes import ClassNetwork
@@ -56,17 +56,6 @@ def _schema_0(state: dict) -> dict:
 
 
 MIGRATIONS = {0: _schema_0}  # version -> the state one version on
-
-
-def schema_of(version, what: str, newest: int) -> int:
-    """A file's schema ``version`` (None: written before schemas were numbered, 0), checked: ValueError for
-    no version number, InputError (one line) for one newer than ``newest``, which this ftorch reads."""
-    version = 0 if version is None else version
-    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
-        raise ValueError(f"schema {version!r} is not a version number")
-    if version > newest:
-        raise InputError(f"{what} of schema {version}, newer than this ftorch reads ({newest}): update ftorch to read it")
-    return version
 
 
 def migrated(state: dict) -> dict:

@@ -1,6 +1,7 @@
 """Alg. 6.1 and 6.2 (ftorch.grasp): angular errors, feature models against a brute-force re-derivation,
 discarding, learning on simulated grasps, reproducibility, bad input (the ``grasp`` command:
 tests/training/test_grasp_command.py)."""
+import json
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.errors import InputError
+from ftorch.errors import InputError, NewerSchema
 from ftorch.grasp.feature_set import Experience, GraspFeatureSet
 from ftorch.grasp.learner import GraspLearner
 from ftorch.grasp.models import FeatureModel, angular_error
@@ -311,3 +312,24 @@ def test_a_saved_grasp_learner_recommends_as_before_and_refuses_to_learn(clean_p
         (tmp_path / "bad.json").write_text(json.dumps(bad))
         with pytest.raises(InputError, match="damaged grasp learner"):
             GraspLearner.load(tmp_path / "bad.json")
+
+
+def test_a_grasp_learner_file_of_a_newer_schema_is_refused_in_one_line_and_one_of_schema_0_loads(tmp_path):
+    """A saved state carries ``"schema": 1``, last; a file without it (schema 0) loads as it is; one of a
+    newer schema is refused in one line that names it."""
+    learner = GraspLearner(mu0_split=0.4)
+    mix = fit_mixture(np.array([0.1, 0.12, 0.11]))
+    for c, s in learner.sets.items():
+        s.features = [Texel([float(c)] + [0.0] * 14)]
+        s.models, s.quality = [FeatureModel(1.0, -math.inf, mix, 0.0, 0.02, 9)], np.zeros((4, 1))
+    learner.save(tmp_path / "grasp.json")
+    saved = json.loads((tmp_path / "grasp.json").read_text())
+    assert list(saved)[-1] == "schema" and saved["schema"] == 1
+    (tmp_path / "old.json").write_text(json.dumps({k: v for k, v in saved.items() if k != "schema"}))
+    old = GraspLearner.load(tmp_path / "old.json")
+    assert json.dumps(old.state_dict(training=False)) == json.dumps(learner.state_dict(training=False))
+    (tmp_path / "new.json").write_text(json.dumps({**saved, "schema": 2}))
+    with pytest.raises(NewerSchema) as err:
+        GraspLearner.load(tmp_path / "new.json")
+    assert str(err.value) == (f"{tmp_path / 'new.json'}: a grasp learner state of schema 2, newer than this ftorch reads (1): "
+                              "update ftorch to read it")

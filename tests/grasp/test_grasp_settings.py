@@ -114,7 +114,7 @@ def test_saved_settings_load_and_old_files_still_read(grasps, tmp_path):
     saved = json.loads((tmp_path / "grasp.json").read_text())
     assert saved["settings"] == {"t_dtheta": math.radians(10), "max_k": 3, "min_points": 3, "discard_every": 40,
                                  "max_distance": None, "finger_choice": "thesis", "mu0_split": None}  # as 0.2.0 wrote it
-    assert set(saved) == {"format", "kind", "version", "settings", "sets", "features"}
+    assert set(saved) == {"format", "kind", "version", "settings", "sets", "features", "schema"} and saved["schema"] == 1
     assert all(set(s) == {"fingers", "features", "models", "quality"} for s in saved["sets"])
     with pytest.raises(InputError, match="recommends but cannot learn"):
         loaded.learn(0, FeatureSpace().records(images[:1]), experiences[0])

@@ -115,6 +115,16 @@ def test_a_grasp_resume_under_other_options_or_from_a_bad_checkpoint_is_refused(
         damage(data)
         checkpoint.write_text(json.dumps(data))
         refused("damaged grasp fold checkpoint")
+    data = json.loads(text)
+    assert list(data)[-1] == list(data["state"]["learner"])[-1] == "schema" and data["schema"] == data["state"]["learner"]["schema"] == 1
+    checkpoint.write_text(json.dumps({**data, "schema": 2}))
+    refused(f"{checkpoint}: a grasp fold checkpoint of schema 2, newer than this ftorch reads (1)")
+    checkpoint.write_text(json.dumps({**data, "state": {**data["state"], "learner": {**data["state"]["learner"], "schema": 2}}}))
+    refused(f"{checkpoint}: a grasp learner state of schema 2, newer than this ftorch reads (1)")
+    del data["schema"], data["state"]["learner"]["schema"]  # a checkpoint of schema 0, written before the schema was numbered
+    checkpoint.write_text(json.dumps(data))
+    assert run.main([*ARGV, "--out", str(out), "--resume"]) == 0
+    assert list(json.loads((out / "report.json").read_text()))[-1] == "schema"
     checkpoint.write_text(text)
     assert run.main([*ARGV, "--out", str(out), "--resume"]) == 0
 

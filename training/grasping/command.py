@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.checkpoint import DAMAGED, load_checkpoint, save_checkpoint
-from ftorch.errors import InputError
+from ftorch.checkpoint import DAMAGED, load_checkpoint, save_checkpoint, schema_of
+from ftorch.errors import InputError, NewerSchema
 from ftorch.grasp.learner import GraspLearner
 from ftorch.grasp.settings import MU0_CAP, FingerChoice, GraspSettings
 from ftorch.space.draw import draw_features, grid, save_rgb, titled
@@ -41,6 +41,7 @@ from .figures import error_figure, grasp_figure, reduction_figure
 from .haptics import HapticController
 from .records import FoldEntry, FoldTests, GraspReport, Mode, RunConfig, SeedJob
 from .report import grasp_columns, reduction_words, results, seed_study, write_markdown
+from .schema import SCHEMA
 
 FOLD_KIND = "grasp-fold"
 OPTIONS = ("t_dtheta", "finger_choice", "mu0_split")  # the learner's settings on the command line and in the report
@@ -187,6 +188,7 @@ def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
     if not path.is_file():
         return None
     data = load_checkpoint(path, FOLD_KIND)
+    schema_of(data.get("schema"), f"{path}: a grasp fold checkpoint", SCHEMA)
     if data.get("config") != config or data.get("fold") != fold:
         raise InputError(f"{path}: written by a different run configuration; use another --out or delete it to start afresh")
     done, state, entry = data.get("done"), data.get("state"), data.get("entry")
@@ -201,7 +203,8 @@ def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
 def _save(path: Path, config: dict, fold: GraspFold, entry: FoldEntry | None = None) -> None:
     """A fold's checkpoint: its state after the last epoch, and once it has ended (``entry``), its report entry."""
     save_checkpoint(path, FOLD_KIND, {"config": config, "fold": fold.k, "done": entry is not None,
-                                      "state": fold.state_dict(), "entry": None if entry is None else entry.to_json()})
+                                      "state": fold.state_dict(), "entry": None if entry is None else entry.to_json(),
+                                      "schema": SCHEMA})
 
 
 def _fold_name(k: int, mode: Mode) -> str:
@@ -225,6 +228,8 @@ def _run_fold(job: SeedJob, config: RunConfig, k: int, mode: Mode, pool: dict, s
     if stored is not None:
         try:
             fold.load_state_dict(stored.state)
+        except NewerSchema as err:  # its learner's state: a refusal rather than damage
+            raise NewerSchema(f"{checkpoint}: {err}") from None
         except DAMAGED as err:
             raise InputError(f"{checkpoint}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
         for events in (logdir / name).glob(f"{EVENTS}*"):  # what an interrupted log may have left
@@ -283,7 +288,7 @@ def seed_task(job: SeedJob) -> GraspReport:
                                                          "haptic only vs cued (figures 6.14, 6.17)")))
     report = GraspReport(config, str(device), machine(device), time.perf_counter() - start, results(offline),
                          {mode: results(evaluations[mode]) for mode in config.modes()} if config.online else None,
-                         folds, ["errors.png", "grasps.png", *figures])
+                         folds, ["errors.png", "grasps.png", *figures], schema=SCHEMA)
     write_json(out / "report.json", report.to_json())
     write_markdown(out / "report.md", report)
     return report

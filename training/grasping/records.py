@@ -260,7 +260,8 @@ class SeedStudy(StrictRecord):
 
 @dataclass
 class GraspReport(StrictRecord):
-    """A seed's report.json (with ``seeds`` for the first seed of a study)."""
+    """A seed's report.json (with ``seeds`` for the first seed of a study), and its schema
+    (:mod:`training.grasping.schema`; None: 0)."""
 
     config: RunConfig
     device: str
@@ -271,4 +272,4 @@ class GraspReport(StrictRecord):
     folds: list[FoldEntry] = field(default_factory=list)
     figures: list[str] = field(default_factory=list)
     seeds: SeedStudy | None = field(default=None, metadata=OPTIONAL)
-
+    schema: int | None = field(default=None, metadata=OPTIONAL)

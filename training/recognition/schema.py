@@ -13,7 +13,8 @@ Schema versions:
 """
 from __future__ import annotations
 
-from ftorch.recognition.state import options_before, schema_of
+from ftorch.checkpoint import schema_of
+from ftorch.recognition.state import options_before
 
 SCHEMA = 1
 
