@@ -10,7 +10,6 @@ from ftorch.recognition.learner import DistinctiveFeatureLearner
 from ftorch.recognition.settings import LearnerSettings
 from ftorch.recognition.state import SCHEMA, migrated
 from ftorch.settings import option
-
 from tests.recognition.test_learner import shapes  # noqa: F401  (a fixture)
 
 
