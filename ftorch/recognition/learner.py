@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from ..checkpoint import DAMAGED, load_checkpoint, save_checkpoint
-from ..errors import InputError, NotFittedError
+from ..errors import InputError, NewerSchema, NotFittedError
 from ..settings import as_device
 from ..space.features import Feature, FeatureTable
 from ..space.record import FeatureSpace
@@ -252,8 +252,8 @@ class DistinctiveFeatureLearner(Learning):
         learner = cls(device=device)
         try:
             learner.load_state_dict(data["learner"])
-        except InputError as err:  # a refusal (a newer schema) rather than damage
-            raise InputError(f"{path}: {err}") from None
+        except NewerSchema as err:  # a refusal rather than damage
+            raise NewerSchema(f"{path}: {err}") from None
         except DAMAGED as err:
             raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
         return learner

@@ -335,10 +335,10 @@ def test_a_built_in_task_rendered_otherwise_than_for_the_run_is_named_as_such(ca
     from training.data.datasets import load_task
     from training.recognition.protocol import same_images
     task = load_task("plym", classes=2, views=2, size=32)
-    same_images(task, {"images": task.fingerprint}, "--run R", None)
+    same_images(task, task.fingerprint, "--run R", None)
     with pytest.raises(InputError, match="the plym task renders other images than those --run R learned"):
-        same_images(task, {"images": "0" * 32}, "--run R", None)
-    same_images(task, {}, "--run R", None)
+        same_images(task, "0" * 32, "--run R", None)
+    same_images(task, None, "--run R", None)
     assert "--run R does not record which images it learned from; the plym task" in capsys.readouterr().err
 
 

@@ -23,7 +23,7 @@ import torch
 from tqdm import tqdm
 
 from ftorch.checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint
-from ftorch.errors import InputError
+from ftorch.errors import InputError, NewerSchema
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome, top1_accuracy
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -231,6 +231,8 @@ def load_learner(path) -> DistinctiveFeatureLearner:
     try:
         state = {k: v for k, v in data["learner"].items() if k not in TRAINING_STATE}
         learner.load_state_dict(state, unpack_features(data["features"]))
+    except NewerSchema as err:  # its learner's state: a refusal rather than damage
+        raise NewerSchema(f"{path}: {err}") from None
     except DAMAGED as err:
         raise InputError(f"{path}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
     return learner
@@ -283,6 +285,8 @@ class Fold:
             learner.load_state_dict(data["learner"], features, env=self.train)
             order.set_state(torch.from_numpy(decode_array(data["order"], shape=GENERATOR_STATE).astype(np.uint8)))
             state = FoldState.from_dict(data["state"])
+        except NewerSchema as err:  # its learner's state: a refusal rather than damage
+            raise NewerSchema(f"{self.checkpoint}: {err}") from None
         except DAMAGED as err:
             raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
