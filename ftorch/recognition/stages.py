@@ -115,7 +115,8 @@ class Stage:
     """One finished stage (alg. 5.3): its number within the current class's schedule and overall
     (``step``), the classes taught, its t_KSD, cycles, presentations so far, whether the training set
     was learned, KSD_min(s), whether the target was met, the per-cycle counts (figure 5.1), and the
-    searches that failed on one image ``REPEATED`` times or more (:func:`repeated`)."""
+    searches that failed on one image ``REPEATED`` times or more (:func:`repeated`; None in a stage
+    read from a file written before they were recorded, which is written back without them)."""
 
     stage: int
     step: int
@@ -129,18 +130,19 @@ class Stage:
     mistakes_per_cycle: list[int]
     expert_per_cycle: list[int]
     discarded_per_cycle: list[int]
-    failing: tuple[FailedSearch, ...] = ()
+    failing: tuple[FailedSearch, ...] | None = ()
 
     def to_dict(self) -> dict:
-        return {**{f.name: getattr(self, f.name) for f in fields(self)[:-1]},
-                "failing": [f.to_dict() for f in self.failing]}
+        out = {f.name: getattr(self, f.name) for f in fields(self)[:-1]}
+        return out if self.failing is None else {**out, "failing": [f.to_dict() for f in self.failing]}
 
     @classmethod
     def from_dict(cls, entry: dict) -> "Stage":
         """The stage fields of a report entry (which may hold more; one written before failed
-        searches were recorded has none)."""
+        searches were recorded has none: None)."""
+        failing = entry.get("failing")
         return cls(**{f.name: entry[f.name] for f in fields(cls)[:-1]},
-                   failing=tuple(FailedSearch.from_dict(f) for f in entry.get("failing", [])))
+                   failing=None if failing is None else tuple(FailedSearch.from_dict(f) for f in failing))
 
 
 @dataclass(frozen=True)

@@ -352,7 +352,7 @@ def failing_section(folds: list[FoldEntry]) -> list[str]:
     """The training images the search failed on again and again (alg. 4.8, 5.1), per fold and stage:
     which image, which classes, how many searches; nothing where there are none."""
     rows = [f"| {f.fold} | {s.stage.stage} | {x.name} | {x.label} | {', '.join(map(str, x.against)) or '-'} | "
-            f"{x.searches} |" for f in folds for s in f.stages for x in s.stage.failing]
+            f"{x.searches} |" for f in folds for s in f.stages for x in s.stage.failing or ()]
     if not rows:
         return []
     return ["## Training images the search failed on again and again", "",
