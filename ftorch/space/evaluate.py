@@ -37,6 +37,7 @@ from .primitives import PartKind
 from .record import ImageRecords
 from .region import Region, inside
 from .sampling import Frames, placements, sample_texture, sample_unmasked, steered
+from .steering import dot
 from .texture import level_sigma
 
 
@@ -174,8 +175,8 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
     """Eq. 3.13 at every reference point (F, K), then its maximum per image (eq. 3.14) over the
     ``allowed`` points (F, K; None: all): the fields of :class:`FeatureValues`, or the values alone
     where not ``located``."""
-    numerator = torch.einsum("fd,kd->fk", vectors[0], reference.canonical)
-    observed = (reference.canonical**2).sum(-1).expand_as(numerator)
+    numerator = dot(vectors[0][:, None], reference.canonical[None])
+    observed = dot(reference.canonical, reference.canonical).expand_as(numerator)
     valid = None
     attitudes = [tuple(params[:, i, j][:, None] for j in range(4)) for i in range(1, len(kinds))]
     parts = placements((reference.x, reference.y, reference.sigma, reference.theta), attitudes)
@@ -187,18 +188,19 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
         # an invalid sample's cosine becomes -1 below, so its responses need not be zeroed first
         if kinds[i] is PartKind.TEXTURE:
             sample, ok = sample_texture(records, reference.image, x, y, sigma)
-            sample = sample / sample.norm(dim=-1, keepdim=True).clamp_min(tiny)
-            coefficient = torch.einsum("fkd,fd->fk", sample, vectors[i] / vectors[i].norm(dim=1, keepdim=True)).clamp(0, 1)
+            sample = sample / dot(sample, sample).sqrt()[..., None].clamp_min(tiny)
+            unit = vectors[i] / dot(vectors[i], vectors[i]).sqrt()[:, None]
+            coefficient = dot(sample, unit[:, None]).clamp(0, 1)
             texture = coefficient if texture is None else texture * coefficient
         else:
             edgel = kinds[i] == PartKind.EDGEL
             frames = Frames.of(records, reference.image) if frames is None else frames
             sample, ok = sample_unmasked(records.pyramid, frames, x, y, sigma, edgel)
             sample = steered(sample, theta, edgel)
-            numerator = numerator + torch.einsum("fkd,fd->fk", sample, vectors[i])
-            observed = observed + (sample**2).sum(-1)
+            numerator = numerator + dot(sample, vectors[i][:, None])
+            observed = observed + dot(sample, sample)
         valid = ok if valid is None else valid & ok
-    oriented = [(v**2).sum(1) for v, kind in zip(vectors, kinds) if kind is not PartKind.TEXTURE]  # part 0 is oriented
+    oriented = [dot(v, v) for v, kind in zip(vectors, kinds) if kind is not PartKind.TEXTURE]  # part 0 is oriented
     pattern = sum(oriented[1:], start=oriented[0])[:, None]
     cosine = numerator / torch.sqrt(observed * pattern).clamp_min(tiny)
     if texture is not None:  # the oriented parts' cosine (eq. 3.13) times each texture part's coefficient
@@ -221,11 +223,11 @@ def _texture_fields(features: list[Texture], records: ImageRecords, max_elements
     bounds = None if regions is None else _Bounds(regions, records, reference)
     chunk = max(1, max_elements // max(1, len(reference.image) * 2 + (0 if bounds is None else bounds.elements)))
     tiny = torch.finfo(records.dtype).tiny
-    points = reference.canonical / reference.canonical.norm(dim=1, keepdim=True).clamp_min(tiny)
+    points = reference.canonical / dot(reference.canonical, reference.canonical).sqrt()[:, None].clamp_min(tiny)
     results = []
     for start in range(0, len(features), chunk):
         v = vectors[start : start + chunk]
-        cosine = ((v / v.norm(dim=1, keepdim=True)) @ points.T).clamp(0, 1)
+        cosine = dot((v / dot(v, v).sqrt()[:, None])[:, None], points[None]).clamp(0, 1)
         if bounds is not None:
             cosine = torch.where(bounds.allowed(start, start + chunk), cosine, -1.0)
         results.append(reference.best(cosine, located))

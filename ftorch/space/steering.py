@@ -16,6 +16,17 @@ from torch import Tensor
 _DELTA = torch.tensor([[2 * (k - j) * math.pi / 3 for j in range(3)] for k in range(3)], dtype=torch.float64)
 
 
+def dot(a: Tensor, b: Tensor) -> Tensor:
+    """Dot products over the last axis of ``a`` and ``b`` (broadcast over the others), summed term by
+    term in descriptor order. Each value's arithmetic is then the same whatever else shares the call
+    (features, images, reference points) and whatever the thread count; a matrix product's summation
+    order follows its operands' shapes and its threads' blocking (docs/decisions.md, "Exact values")."""
+    out = a[..., 0] * b[..., 0]
+    for j in range(1, a.shape[-1]):
+        out = out + a[..., j] * b[..., j]
+    return out
+
+
 def rotate_pair(pair: Tensor, angle: Tensor) -> Tensor:
     """Steer first-order pairs (..., 2) by ``angle`` (...): the first-order half of eq. 3.8."""
     c, s = torch.cos(angle), torch.sin(angle)
@@ -28,8 +39,8 @@ def steer_block(block: Tensor, angle: Tensor) -> Tensor:
     first = rotate_pair(block[..., 0:2], angle)
     b = block[..., 2:5]
     delta = _DELTA.to(block.device, block.dtype)
-    cos_b = b @ torch.cos(delta).T
-    sin_b = b @ torch.sin(delta).T
+    cos_b = dot(b[..., None, :], torch.cos(delta))  # (..., 3): each angle's row, term by term
+    sin_b = dot(b[..., None, :], torch.sin(delta))
     c2, s2 = torch.cos(2 * angle)[..., None], torch.sin(2 * angle)[..., None]
     second = (b.sum(-1, keepdim=True) + 2 * (c2 * cos_b - s2 * sin_b)) / 3
     return torch.cat([first, second], dim=-1)

@@ -149,3 +149,43 @@ def test_same_seed_gives_the_same_features_and_another_seed_differs(records):
     other = sampled_features(records, seed=41)
     assert [f.to_json() for f in first] == [f.to_json() for f in again]
     assert [f.to_json() for f in first] != [f.to_json() for f in other]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_value_is_the_same_bits_whatever_shares_its_call_and_the_thread_count(dtype):
+    """Random texels, edgel pairs, textures, geometric expansions (some with texture parts) and Booleans on
+    images of two sizes: each value computed alone (one feature, one image), all at once, in shuffled order
+    and on one thread instead of two, bit for bit (the dot products of eq. 3.13 sum term by term)."""
+    from ftorch.space.generate import random_texture
+
+    images = [random_image(40 + 8 * (k % 2), 48, seed=30 + k, dtype=dtype) for k in range(6)]
+    records = FeatureSpace().to(dtype=dtype).records(images)
+    generator = torch.Generator().manual_seed(4)
+    features: list[Feature] = []
+    for n in range(len(images)):
+        for sampler in (random_texel, random_edgel_pair, random_texture):
+            made = sampler(records, n, generator)
+            if made is not None:
+                features.append(made)
+    local = [f for f in features if isinstance(f, (Texel, Geometric))]
+    for k in range(12):
+        made = expand_geometric(local[k % len(local)], records, k % len(images), generator, texture=k % 2 == 1)
+        if made is not None:
+            features.append(made)
+    features += [Conjunction(features[0], features[-1]), Disjunction(features[1], features[-2])]
+    features = list(dict.fromkeys(features))
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        merged = values_only(features, records).numpy()
+        alone = np.array([[values_only([f], records[torch.tensor([n])]).numpy()[0, 0] for n in range(len(images))]
+                          for f in features])
+        order = np.random.default_rng(0).permutation(len(features))
+        shuffled = values_only([features[i] for i in order], records).numpy()[np.argsort(order)]
+        torch.set_num_threads(1)
+        one_thread = values_only(features, records).numpy()
+    finally:
+        torch.set_num_threads(threads)
+    assert len(features) > 20 and (merged > 0).any()
+    for other in (alone, shuffled, one_thread):
+        assert np.array_equal(other.view(np.uint8), merged.view(np.uint8))
