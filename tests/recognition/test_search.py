@@ -147,13 +147,20 @@ def _spot(rng) -> np.ndarray:
 def test_a_learner_with_regions_tells_apart_classes_that_differ_only_in_where_things_are():
     """The same square at the upper left, or turned by 180 degrees to the lower right: texture values
     (rotation invariant, 7.2.1) matched anywhere are alike in both classes; bounded to a region in the
-    image frame they tell the classes apart."""
+    image frame they tell the classes apart. Over seeds 0-4: the bounded learner scores at least as well
+    on every seed and better on the mean, and wherever it scores better its networks hold a bounded feature."""
     rng = np.random.default_rng(0)
     images = [_spot(rng) if k % 2 == 0 else np.ascontiguousarray(np.rot90(_spot(rng), 2)) for k in range(24)]
     labels = ["upper left" if k % 2 == 0 else "lower right" for k in range(24)]
     train, test = (images[:12], labels[:12]), (images[12:], labels[12:])
-    options = {"seed": 0, "primitives": "texture", "contrast": 4}
-    anywhere = DistinctiveFeatureLearner(**options).fit(*train, stages=0, max_cycles=5)
-    bounded = DistinctiveFeatureLearner(regions="image", **options).fit(*train, stages=0, max_cycles=5)
-    assert bounded.score(*test) == 1.0 > anywhere.score(*test) + 0.2
-    assert any(isinstance(f, Within) for net in bounded.networks.values() for f in net.features)
+    scores = []
+    for seed in range(5):
+        options = {"seed": seed, "primitives": "texture", "contrast": 4}
+        anywhere = DistinctiveFeatureLearner(**options).fit(*train, stages=0, max_cycles=5).score(*test)
+        learner = DistinctiveFeatureLearner(regions="image", **options).fit(*train, stages=0, max_cycles=5)
+        bounded = learner.score(*test)
+        assert bounded >= anywhere
+        if bounded > anywhere:
+            assert any(isinstance(f, Within) for net in learner.networks.values() for f in net.features)
+        scores.append((bounded, anywhere))
+    assert np.mean([b for b, _ in scores]) >= np.mean([a for _, a in scores]) + 0.05
