@@ -293,7 +293,6 @@ class ExactInference:
 
 
 _ENGINES: WeakKeyDictionary[ClassNetwork, ExactInference] = WeakKeyDictionary()  # the latest engine of each network
-_PATHS: WeakKeyDictionary[ClassNetwork, dict[str, list]] = WeakKeyDictionary()  # einsum paths, by network
 
 
 def engine(network: ClassNetwork) -> ExactInference:
@@ -303,5 +302,5 @@ def engine(network: ClassNetwork) -> ExactInference:
     snapshot = network.snapshot()
     found = _ENGINES.get(network)
     if found is None or found.network is not snapshot:
-        found = _ENGINES[network] = ExactInference(snapshot, _PATHS.setdefault(network, {}))
+        found = _ENGINES[network] = ExactInference(snapshot, None if found is None else found.paths)
     return found

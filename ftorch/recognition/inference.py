@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from .bayes import ClassNetwork
-from .exact import engine
+from .exact import ExactInference, engine
 
 TOP_TOLERANCE = 1e-12  # alg. 4.4 continued for the top label (top_class) stops at I_max <= this, whatever test_information
 
@@ -220,12 +220,13 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     return rec
 
 
-def _entered(net: ClassNetwork, state: np.ndarray, position: int, present: bool) -> tuple | None:
+def _entered(inference: ExactInference, state: np.ndarray, position: int, present: bool) -> tuple | None:
     """``state`` with node ``position`` observed (present or absent) and the network's (posterior,
-    informations) under it; None where the network deems that evidence impossible (not entered)."""
+    informations) under it, by its engine ``inference``; None where the network deems that evidence
+    impossible (not entered)."""
     trial = state.copy()
     trial[position] = int(present)
-    posterior, info = engine(net).evaluate(trial)
+    posterior, info = inference.evaluate(trial)
     return (trial, posterior, info) if posterior == posterior else None  # NaN: impossible
 
 
@@ -237,6 +238,7 @@ def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.n
     presence or absence into every network holding it (the ``chosen`` ones only, where given);
     ``record(feature, value)`` after each query."""
     start, slot_key, slots, keys = plan.start, plan.slot_key, plan.slots, plan.keys
+    engines = [engine(net) for net in plan.nets]  # the networks stand still during a recognition
     while len(informative):
         slot = int(informative.argmax())
         if not informative[slot] > tolerance:
@@ -252,7 +254,7 @@ def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.n
             present = value > plan.nets[n].threshold[key]
             if positive_only and not present:
                 continue
-            entered = _entered(plan.nets[n], states[n], plan.local[n][key], present)
+            entered = _entered(engines[n], states[n], plan.local[n][key], present)
             if entered is not None:
                 states[n], belief[n], info = entered
                 informative[start[n]:start[n + 1]] = np.where(asked[start[n]:start[n + 1]], 0.0, info)
@@ -264,14 +266,14 @@ def _replayed(net: ClassNetwork, local: dict, rec: Recognition, positive_only: b
     """The evidence state alg. 4.4 left in ``net`` after ``rec``: its queried features entered in their
     order as :func:`recognize` enters them (absence skipped with ``positive_only``, evidence the network
     deems impossible not entered), so the same state, step for step."""
-    state = np.full(len(net.features), -1, dtype=np.int64)
+    state, inference = np.full(len(net.features), -1, dtype=np.int64), engine(net)
     for key in rec.queried:
         if key not in local:
             continue
         present = rec.values[key] > net.threshold[key]
         if positive_only and not present:
             continue
-        entered = _entered(net, state, local[key], present)
+        entered = _entered(inference, state, local[key], present)
         if entered is not None:
             state = entered[0]
     return state
