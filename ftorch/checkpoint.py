@@ -36,6 +36,8 @@ import sys
 import tempfile
 import zlib
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from enum import Enum
 from pathlib import Path
 
@@ -366,6 +368,19 @@ def load_checkpoint(path, kind: str | tuple[str, ...]) -> dict:
         raise InputError(f"{path}: checkpoint version {data.get('version')!r}, this ftorch reads versions "
                          f"{READS[0]} to {READS[-1]}")
     return data
+
+
+@contextmanager
+def reading(path, what: str) -> Iterator[None]:
+    """Reading the checkpoint at ``path``: a file of a newer schema is refused as :class:`NewerSchema`
+    naming it, and anything else found damaged (:data:`DAMAGED`, InputError included) is one InputError
+    naming ``path`` and ``what`` the file is."""
+    try:
+        yield
+    except NewerSchema as err:  # a refusal rather than damage
+        raise NewerSchema(f"{path}: {err}") from None
+    except DAMAGED as err:
+        raise InputError(f"{path}: damaged {what} ({type(err).__name__}: {err})") from None
 
 
 def schema_of(version, what: str, newest: int) -> int:

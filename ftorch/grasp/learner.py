@@ -60,8 +60,8 @@ from typing import Hashable, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from ..checkpoint import DAMAGED, load_checkpoint, save_checkpoint
-from ..errors import InputError, NewerSchema, NotFittedError
+from ..checkpoint import load_checkpoint, reading, save_checkpoint
+from ..errors import InputError, NotFittedError
 from ..settings import as_device
 from ..space.features import Feature
 from ..space.generate import expand_geometric, random_edgel_pair
@@ -227,12 +227,8 @@ class GraspLearner:
         """Read a learner written by :meth:`save`; one InputError for a damaged or foreign file."""
         data = load_checkpoint(path, KIND)
         learner = cls(device=device)
-        try:
+        with reading(path, "grasp learner"):
             learner.load_state_dict({**{k: data[k] for k in ("settings", "sets", "features")}, "schema": data.get("schema")})
-        except NewerSchema as err:  # a refusal rather than damage
-            raise NewerSchema(f"{path}: {err}") from None
-        except DAMAGED as err:
-            raise InputError(f"{path}: damaged grasp learner ({type(err).__name__}: {err})") from None
         return learner
 
     def _candidates(self, records: ImageRecords, fingers: int | None) -> list[int]:

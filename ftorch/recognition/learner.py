@@ -43,8 +43,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..checkpoint import DAMAGED, load_checkpoint, save_checkpoint
-from ..errors import InputError, NewerSchema, NotFittedError
+from ..checkpoint import load_checkpoint, reading, save_checkpoint
+from ..errors import InputError, NotFittedError
 from ..settings import as_device
 from ..space.features import Feature, FeatureTable
 from ..space.record import FeatureSpace
@@ -250,10 +250,6 @@ class DistinctiveFeatureLearner(Learning):
         InputError for a damaged or foreign file."""
         data = load_checkpoint(path, saved.KIND)
         learner = cls(device=device)
-        try:
+        with reading(path, "learner checkpoint"):
             learner.load_state_dict(data["learner"])
-        except NewerSchema as err:  # a refusal rather than damage
-            raise NewerSchema(f"{path}: {err}") from None
-        except DAMAGED as err:
-            raise InputError(f"{path}: damaged learner checkpoint ({type(err).__name__}: {err})") from None
         return learner

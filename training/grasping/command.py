@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from ftorch import FeatureSpace
-from ftorch.checkpoint import DAMAGED, load_checkpoint, save_checkpoint, schema_of
-from ftorch.errors import InputError, NewerSchema
+from ftorch.checkpoint import load_checkpoint, reading, save_checkpoint, schema_of
+from ftorch.errors import InputError
 from ftorch.grasp.learner import GraspLearner
 from ftorch.grasp.settings import MU0_CAP, FingerChoice, GraspSettings
 from ftorch.space.draw import draw_features, grid, save_rgb, titled
@@ -174,10 +174,9 @@ def recommended_features(fold: GraspFold, heading: str, per_kind: int = 3) -> np
 
 @dataclass(frozen=True)
 class StoredFold:
-    """A fold's checkpoint as resuming reads it: whether the fold had ended, its state after the last
-    epoch (:meth:`GraspFold.state_dict`) and, where it had ended, its report entry."""
+    """A fold's checkpoint as resuming reads it: its state after the last epoch (:meth:`GraspFold.state_dict`)
+    and, where the fold had ended, its report entry (None where it had not)."""
 
-    done: bool
     state: dict
     entry: FoldEntry | None
 
@@ -188,16 +187,15 @@ def _stored(path: Path, config: dict, fold: int) -> StoredFold | None:
     if not path.is_file():
         return None
     data = load_checkpoint(path, FOLD_KIND)
-    schema_of(data.get("schema"), f"{path}: a grasp fold checkpoint", SCHEMA)
+    with reading(path, "grasp fold checkpoint"):
+        schema_of(data.get("schema"), "a grasp fold checkpoint", SCHEMA)
     if data.get("config") != config or data.get("fold") != fold:
         raise InputError(f"{path}: written by a different run configuration; use another --out or delete it to start afresh")
     done, state, entry = data.get("done"), data.get("state"), data.get("entry")
     if not isinstance(done, bool) or not isinstance(state, dict) or (done and not isinstance(entry, dict)):
         raise InputError(f"{path}: damaged grasp fold checkpoint (no state, or an ended fold without its report entry)")
-    try:
-        return StoredFold(done, state, FoldEntry.from_json(entry) if done else None)
-    except DAMAGED as err:
-        raise InputError(f"{path}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
+    with reading(path, "grasp fold checkpoint"):
+        return StoredFold(state, FoldEntry.from_json(entry) if done else None)
 
 
 def _save(path: Path, config: dict, fold: GraspFold, entry: FoldEntry | None = None) -> None:
@@ -226,12 +224,8 @@ def _run_fold(job: SeedJob, config: RunConfig, k: int, mode: Mode, pool: dict, s
     fold = GraspFold(k, config.experiment, pool, config.best, space, config.new_learner(k), controller, config.seed,
                      not job.quiet)
     if stored is not None:
-        try:
+        with reading(checkpoint, "grasp fold checkpoint"):
             fold.load_state_dict(stored.state)
-        except NewerSchema as err:  # its learner's state: a refusal rather than damage
-            raise NewerSchema(f"{checkpoint}: {err}") from None
-        except DAMAGED as err:
-            raise InputError(f"{checkpoint}: damaged grasp fold checkpoint ({type(err).__name__}: {err})") from None
         for events in (logdir / name).glob(f"{EVENTS}*"):  # what an interrupted log may have left
             events.unlink()
     job.ledger.files(checkpoint)

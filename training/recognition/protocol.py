@@ -22,8 +22,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ftorch.checkpoint import DAMAGED, decode_array, encode_array, load_checkpoint, save_checkpoint
-from ftorch.errors import InputError, NewerSchema
+from ftorch.checkpoint import decode_array, encode_array, load_checkpoint, reading, save_checkpoint
+from ftorch.errors import InputError
 from ftorch.recognition.environment import ImageSet
 from ftorch.recognition.inference import Outcome, Recognition, accuracy, outcome, top1_accuracy
 from ftorch.recognition.learner import DistinctiveFeatureLearner
@@ -228,13 +228,9 @@ def load_learner(path) -> DistinctiveFeatureLearner:
     if data["kind"] == LEARNER_KIND:
         return DistinctiveFeatureLearner.load(path)
     learner = DistinctiveFeatureLearner()
-    try:
+    with reading(path, "fold checkpoint"):
         state = {k: v for k, v in data["learner"].items() if k not in TRAINING_STATE}
         learner.load_state_dict(state, unpack_features(data["features"]))
-    except NewerSchema as err:  # its learner's state: a refusal rather than damage
-        raise NewerSchema(f"{path}: {err}") from None
-    except DAMAGED as err:
-        raise InputError(f"{path}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
     return learner
 
 
@@ -272,23 +268,19 @@ class Fold:
         data = load_checkpoint(self.checkpoint, FOLD_KIND)
         stored = data.get("config")
         if isinstance(stored, dict):  # nor did a run written before runs recorded their images: not checked
-            stored = {"images": self.config.images,
-                      **migrated_config(stored, data.get("schema"), f"{self.checkpoint}: a fold checkpoint")}
+            with reading(self.checkpoint, "fold checkpoint"):
+                stored = {"images": self.config.images, **migrated_config(stored, data.get("schema"), "a fold checkpoint")}
         if stored != self.config.to_dict() or data.get("fold") != self.fold:
             raise InputError(f"{self.checkpoint}: written by a different run configuration; "
                              f"use another --out or delete it to start afresh")
         learner = DistinctiveFeatureLearner(device=self.config.device)
         order = torch.Generator()
-        try:
+        with reading(self.checkpoint, "fold checkpoint"):
             features = unpack_features(data["features"], self.train.cache.memo)  # blocks read: packed already
             self.train.load_cache_state(data["cache"], features)  # first: the learner's instance values refer to it
             learner.load_state_dict(data["learner"], features, env=self.train)
             order.set_state(torch.from_numpy(decode_array(data["order"], shape=GENERATOR_STATE).astype(np.uint8)))
             state = FoldState.from_dict(data["state"])
-        except NewerSchema as err:  # its learner's state: a refusal rather than damage
-            raise NewerSchema(f"{self.checkpoint}: {err}") from None
-        except DAMAGED as err:
-            raise InputError(f"{self.checkpoint}: damaged fold checkpoint ({type(err).__name__}: {err})") from None
         return learner, order, state
 
     def schedule(self, learner, order: torch.Generator, stages: int | None, max_cycles: int,
