@@ -111,7 +111,7 @@ class GraspLearner:
         settings = GraspSettings() if settings is None else settings
         if not isinstance(settings, GraspSettings):
             raise InputError(f"settings must be GraspSettings, got {type(settings).__name__}")
-        self.settings = settings.replace(**options) if options else settings
+        self.settings = settings.replace(**options)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed must be an integer of at least 0, got {seed!r}")
         self.seed, self.device = int(seed), as_device(device)

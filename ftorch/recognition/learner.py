@@ -53,7 +53,7 @@ from .environment import ImageSet
 from .explain import Explanation, trace
 from .inference import Answer, Recognition, accuracy, top1_accuracy
 from .learning import Learning
-from .settings import LearnerSettings, integer_in, threshold_bits
+from .settings import LearnerSettings, threshold_bits
 from .stages import MAX_CYCLES, Schedule, Stage
 
 
@@ -79,7 +79,7 @@ class DistinctiveFeatureLearner(Learning):
     def __init__(self, settings: LearnerSettings | None = None, *, seed: int = 0, device: str | torch.device = "cpu",
                  **options):
         super().__init__((LearnerSettings() if settings is None else settings).replace(**options),
-                         integer_in("seed", seed, 0, saved.MAX_SEED))
+                         saved.checked_seed(seed))
         self.device = device
         self.space = FeatureSpace().to(as_device(device))
 
@@ -106,7 +106,7 @@ class DistinctiveFeatureLearner(Learning):
         if not isinstance(settings, LearnerSettings):
             raise InputError(f"settings must be a LearnerSettings, got {type(settings).__name__}")
         if "seed" in params:
-            self.seed = integer_in("seed", params.pop("seed"), 0, saved.MAX_SEED)
+            self.seed = saved.checked_seed(params.pop("seed"))
         if "device" in params:
             self.device = params.pop("device")
             self.space = self.space.to(as_device(self.device))

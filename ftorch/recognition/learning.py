@@ -45,7 +45,7 @@ from .expertise import choose_pair
 from .inference import Outcome, Recognition, Result, outcome, residual_entropy
 from .instances import InstanceList
 from .recognizer import Ahead, Recognizer
-from .settings import Evidence, LearnerSettings
+from .settings import LearnerSettings
 
 
 class Presentation(NamedTuple):
@@ -108,8 +108,7 @@ class Learning:
     def recognitions(self, env: ImageSet, images, threshold: float, top: bool = False) -> list[Recognition]:
         """Alg. 4.4 on ``images`` of ``env`` with this learner's networks and ``evidence``, stopping at
         ``threshold`` bits; ``top``: with their top labels (:func:`~ftorch.recognition.inference.top_class`)."""
-        positive_only = self.settings.evidence is Evidence.POSITIVE
-        return self.recognizer.images(self.networks, env, images, threshold, positive_only, top)
+        return self.recognizer.images(self.networks, env, images, threshold, self.settings.positive_only, top)
 
     def reestimate(self) -> None:
         """Re-discretize every feature node by KSD and re-count every CPT and prior (alg. 4.7 step 3)."""
@@ -132,7 +131,7 @@ class Learning:
                 self.networks[label] = ClassNetwork(label)
         self.counting.instances.add(image, true)
         first = self._training_recognition(env, image, self.recognizer.first(
-            self.networks, env, image, self.settings.min_information, self.settings.evidence is Evidence.POSITIVE))
+            self.networks, env, image, self.settings.min_information, self.settings.positive_only))
         entropy = residual_entropy(first)
         if outcome(first.recognized, true) is Outcome.CORRECT:
             return self._expert(env, image, first, entropy, t_ksd)

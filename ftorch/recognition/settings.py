@@ -140,6 +140,11 @@ class LearnerSettings(Settings):
         return cls(min_information=0.0, pseudocount=0.0, redundancy=1, primitives=THESIS_PRIMITIVES,
                    contrast=1).replace(**changes)
 
+    @property
+    def positive_only(self) -> bool:
+        """Whether only present features enter the networks (``evidence`` positive, 4.4.2)."""
+        return self.evidence is Evidence.POSITIVE
+
     def to_dict(self) -> dict:
         """JSON-ready: the primitives and the regions' frames as comma-separated strings, the evidence as its name."""
         out = asdict(self)

@@ -40,6 +40,11 @@ GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a t
 MAX_SEED = 2**63 - 1  # torch.Generator.manual_seed takes 0 .. 2**64 - 1; a seed stays a signed 64-bit integer
 
 
+def checked_seed(value) -> int:
+    """A learner's seed: an integer from 0 to :data:`MAX_SEED`; InputError otherwise."""
+    return integer_in("seed", value, 0, MAX_SEED)
+
+
 def options_before(stored: dict) -> dict:
     """The learner options of ``stored`` (a learner state, or a run's config that writes them in line)
     completed by schema 0's rule: an option it does not record at its value before the option existed,
@@ -172,7 +177,7 @@ def load_state_dict(learning: Learning, state: dict, features: list[Feature] | N
     state = migrated(state)
     features = unpack_features(state["features"]) if features is None else features
     at = lambda i: features[stored_position(i, len(features))]  # noqa: E731
-    learning.seed = integer_in("seed", state["seed"], 0, MAX_SEED)
+    learning.seed = checked_seed(state["seed"])
     missing = [k for k in LearnerSettings.names() if k not in state]
     if missing:
         raise ValueError(f"a state of schema {SCHEMA} without the option {missing[0]!r}")

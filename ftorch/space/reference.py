@@ -26,7 +26,7 @@ from .primitives import EDGEL
 from .record import ImageRecords
 from .region import Frame, Region
 from .sampling import SPAN_TOLERANCE
-from .texture import FIRST_LEVEL
+from .texture import FIRST_LEVEL, grid_step
 
 
 def scipy_basis(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
@@ -121,7 +121,7 @@ def _texture_sample(grid: dict, x: float, y: float, sigma: float) -> np.ndarray 
     points = grid.get(level) if level >= FIRST_LEVEL else None
     if not points:
         return None
-    step = max(1, round(2 ** (level / 2)))
+    step = grid_step(level)
     across = _bracket(sorted({px for px, _ in points}), x, step)
     down = _bracket(sorted({py for _, py in points}), y, step)
     if across is None or down is None:

@@ -280,8 +280,9 @@ def seed_task(job: SeedJob) -> GraspReport:
     save_rgb(out / "grasps.png", figure_rgb(grasp_figure(grasp_columns(offline, config.experiment),
                                                          f"{config.experiment}, seed {config.seed}: probes and mu_0, "
                                                          "haptic only vs cued (figures 6.14, 6.17)")))
-    report = GraspReport(config, str(device), machine(device), time.perf_counter() - start, results(offline),
-                         {mode: results(evaluations[mode]) for mode in config.modes()} if config.online else None,
+    pooled = {mode: results(evaluations[mode]) for mode in config.modes()}
+    report = GraspReport(config, str(device), machine(device), time.perf_counter() - start, pooled[Mode.OFFLINE],
+                         pooled if config.online else None,
                          folds, ["errors.png", "grasps.png", *figures], schema=SCHEMA)
     write_json(out / "report.json", report.to_json())
     write_markdown(out / "report.md", report)

@@ -297,7 +297,7 @@ def average(folds: list[FoldRobustness]) -> RobustnessAverage:
 
     out = RobustnessAverage({s: ours([f.ours[s] for f in folds]) for s in folds[0].ours})
     if all(f.train is not None for f in folds):
-        out.train = Presence(*(float(np.mean([getattr(f.train, k) for f in folds])) for k in ("present_own", "present_other")))
+        out.train = mean_block([f.train for f in folds])
     if all(f.nodes is not None for f in folds):
         out.types = type_table([r for f in folds for r in f.nodes])
     if folds[0].peers is not None:

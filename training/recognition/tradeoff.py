@@ -289,7 +289,7 @@ def budget_rows(points: list[Point]) -> list[BudgetRow]:
     for budget in BUDGETS:
         best = {m: best_within(points, m, budget) for m in METHODS}
         ours = best["ftorch"]
-        rows.append(BudgetRow(budget, *best.values(), None if ours is None else all(p is None or ours.mean_top1 >= p.mean_top1
+        rows.append(BudgetRow(budget, **best, ftorch_leads=None if ours is None else all(p is None or ours.mean_top1 >= p.mean_top1
                                                                                       for m, p in best.items() if m != "ftorch")))
     return rows
 
