@@ -7,9 +7,9 @@ from .explain import Explanation
 from .inference import Answer, Outcome, Recognition, Result, accuracy, outcome, recognize, top1_accuracy, top_class
 from .learner import DistinctiveFeatureLearner
 from .learning import Presentation
-from .settings import Evidence, LearnerSettings
+from .settings import Distinctions, Evidence, LearnerSettings
 from .stages import ClassAdded, Cycle, Schedule, Stage
 
-__all__ = ["Answer", "ClassAdded", "ClassNetwork", "Cycle", "DistinctiveFeatureLearner", "Evidence", "Explanation",
-           "ImageSet", "LearnerSettings", "Outcome", "Presentation", "Recognition", "Result", "Schedule", "Stage",
-           "accuracy", "outcome", "recognize", "top1_accuracy", "top_class"]
+__all__ = ["Answer", "ClassAdded", "ClassNetwork", "Cycle", "DistinctiveFeatureLearner", "Distinctions", "Evidence",
+           "Explanation", "ImageSet", "LearnerSettings", "Outcome", "Presentation", "Recognition", "Result", "Schedule",
+           "Stage", "accuracy", "outcome", "recognize", "top1_accuracy", "top_class"]

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable
 from enum import StrEnum
 
+import numpy as np
 import torch
 
 from ..space.features import Conjunction, Disjunction, Feature, LocalFeature, Within
@@ -149,3 +150,19 @@ class CandidateGenerator:
         made = [f for f in made if f is not None]
         self.sampled += len(made)
         return made
+
+
+def search_order(candidates: list, cuts: np.ndarray, powers: np.ndarray, served: np.ndarray, t_ksd: float,
+                 settings: LearnerSettings) -> list[tuple]:
+    """(candidate, cut-point, power) in the order a search tests them: as drawn (alg. 4.10), those that
+    serve more class distinctions (``served``: a candidate's distinctive power summed over the distinctions
+    it is to make; shared distinctions) first; with ``contrast`` N > 1 those that fail the power test
+    first, then the n_fgen most distinctive on the search's images, most served first, then most
+    distinctive (ties in drawing order)."""
+    drawn = list(zip(candidates, cuts.tolist(), powers.tolist(), (-served).tolist()))
+    if settings.contrast == 1:
+        return [item[:3] for item in sorted(drawn, key=lambda item: item[3])]
+    fails = [power <= 0 or power < t_ksd for _, _, power, _ in drawn]
+    weak = [item[:3] for item, failing in zip(drawn, fails) if failing]
+    strong = [item for item, failing in zip(drawn, fails) if not failing]
+    return weak + [item[:3] for item in sorted(strong, key=lambda item: (item[3], -item[2]))[:settings.n_fgen]]

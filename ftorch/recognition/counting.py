@@ -110,17 +110,20 @@ class Counting:
                         net.set_threshold(f, cut)
             self.estimate(net, settings)
 
-    def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple]) -> list[torch.Tensor]:
+    def pair_powers(self, networks: dict[Hashable, ClassNetwork], pairs: list[tuple],
+                    cuts: np.ndarray | None = None) -> list[torch.Tensor]:
         """KSD_{c,d}(f) (len(others), len(features)) for each (c, others, features) of ``pairs`` (alg.
-        5.2, ``ksd.distinctive_at``): node f at its cut-point in c's network, between instances of c
-        and instances of d that are not of c, for every d in ``others``. All pairs are counted in one
-        call (each row with its own class c); the counts are exact, as pair by pair."""
+        5.2, ``ksd.distinctive_at``): node f at its cut-point in c's network (or at ``cuts``, one per
+        feature of the pairs in turn), between instances of c and instances of d that are not of c, for
+        every d in ``others``. All pairs are counted in one call (each row with its own class c); the
+        counts are exact, as pair by pair."""
         if not pairs:
             return []
         member = {label: self.instances.has(label) for label in
                   dict.fromkeys(x for c, others, _ in pairs for x in (c, *others))}
         values = self.instances.block([f for _, _, features in pairs for f in features])
-        cuts = np.array([networks[c].threshold[f] for c, _, features in pairs for f in features], dtype=float)
+        if cuts is None:
+            cuts = np.array([networks[c].threshold[f] for c, _, features in pairs for f in features], dtype=float)
         present = np.concatenate([np.broadcast_to(member[c], (len(features), len(member[c])))
                                   for c, _, features in pairs])
         against = np.concatenate([np.stack([member[d] for d in others]) & ~member[c] for c, others, _ in pairs])

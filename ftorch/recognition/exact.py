@@ -109,6 +109,8 @@ class ExactInference:
         self.network = network
         self.paths = {} if paths is None else paths
         self.memo: dict[bytes, tuple[float, np.ndarray]] = {}
+        # evidence can decide the class (P(C = c, e) = 0 exactly) only through a zero in the prior or a CPT
+        self.can_decide = not (network.prior > 0).all() or any(not (t > 0).all() for t in network.cpt.values())
         linked = {p for ps in network.parents.values() for p in ps} | {f for f, ps in network.parents.items() if ps}
         self.singles = np.array([i for i, k in enumerate(network.features) if k not in linked], dtype=np.int64)
         self.single_cpt = (np.stack([network.cpt[network.features[i]] for i in self.singles])

@@ -7,7 +7,10 @@ threshold) into every network that holds it: positive and negative evidence both
 absent feature stays unobserved, as if occluded. It stops when no unqueried feature is
 informative (I_max <= ``tolerance``). Evidence that a
 network deems impossible (probability 0 under its counted CPTs) is not entered there; that
-network keeps its belief. Ties in I_max go to the first network, then the first feature.
+network keeps its belief. Ties in I_max go to the first network, then the first feature. A network
+whose class is decided (P(C = 1, e) or P(C = 0, e) exactly 0: log odds +-inf, :func:`decided`) keeps
+its belief whatever is entered next and has no information left: it is neither asked nor told
+again, so it costs nothing for the rest of the recognition (the same queries and beliefs as telling it).
 
 The answer is a set (def. 4.5): every class whose posterior exceeds 0.5, so one class, several
 (ambiguous) or none (ignorant). :func:`top_class` adds one label per image beside it
@@ -220,6 +223,13 @@ def recognize(networks: dict[Hashable, ClassNetwork], measure: Callable[[Hashabl
     return rec
 
 
+def decided(inference: ExactInference, state: np.ndarray, belief: float) -> bool:
+    """Whether a network's class is decided under the evidence ``state``: its ``belief`` is 0 or 1 and
+    its log odds are infinite, so that no further evidence can change it (module doc; a belief of 1.0
+    that is only rounded is not decided)."""
+    return inference.can_decide and (belief == 0.0 or belief == 1.0) and math.isinf(inference.log_odds(state))
+
+
 def _entered(inference: ExactInference, state: np.ndarray, position: int, present: bool) -> tuple | None:
     """``state`` with node ``position`` observed (present or absent) and the network's (posterior,
     informations) under it, by its engine ``inference``; None where the network deems that evidence
@@ -227,7 +237,9 @@ def _entered(inference: ExactInference, state: np.ndarray, position: int, presen
     trial = state.copy()
     trial[position] = int(present)
     posterior, info = inference.evaluate(trial)
-    return (trial, posterior, info) if posterior == posterior else None  # NaN: impossible
+    if posterior != posterior:  # NaN: impossible
+        return None
+    return trial, posterior, np.zeros_like(info) if decided(inference, trial, posterior) else info
 
 
 def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.ndarray, measure, tolerance: float,
@@ -239,6 +251,7 @@ def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.n
     ``record(feature, value)`` after each query."""
     start, slot_key, slots, keys = plan.start, plan.slot_key, plan.slots, plan.keys
     engines = [engine(net) for net in plan.nets]  # the networks stand still during a recognition
+    settled: set[int] = set()  # the networks found decided: neither asked nor told again
     while len(informative):
         slot = int(informative.argmax())
         if not informative[slot] > tolerance:
@@ -249,7 +262,10 @@ def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.n
         informative[slots[best]] = 0.0
         value = float(measure(key))
         for n in plan.holders[best]:
-            if chosen is not None and not chosen[n]:
+            if (chosen is not None and not chosen[n]) or n in settled:
+                continue
+            if decided(engines[n], states[n], belief[n]):
+                settled.add(n)
                 continue
             present = value > plan.nets[n].threshold[key]
             if positive_only and not present:
@@ -380,6 +396,7 @@ class _Block:
         self.belief = np.array([[e[0] for e in evaluated]] * count).reshape(count, len(nets))
         self.informative = np.tile(np.concatenate([e[1] for e in evaluated]) if plan.keys else np.zeros(0), (count, 1))
         self.asked = np.zeros(self.informative.shape, dtype=bool)
+        self.settled = np.zeros((count, len(nets)), dtype=bool)  # decided networks: neither asked nor told again
         first = dict(zip(plan.labels, [e[0] for e in evaluated]))
         self.beliefs: list[list[dict]] = [[dict(first)] for _ in range(count)]
         self.queried: list[list] = [[] for _ in range(count)]
@@ -406,14 +423,18 @@ class _Block:
     def enter(self, n: int, images: np.ndarray, nodes: np.ndarray, present: np.ndarray, positive_only: bool) -> None:
         """Network ``n`` takes the presence of its ``nodes`` (key positions) in ``images``, where the evidence
         is possible (only presence with ``positive_only``): new states, beliefs and informations."""
-        plan = self.plan
-        if positive_only:
-            images, nodes, present = images[present], nodes[present], present[present]
-            if not len(images):
-                return
+        plan, inference = self.plan, engine(self.plan.nets[n])
+        if inference.can_decide:
+            belief = self.belief[images, n]
+            sure = (belief == 0.0) | (belief == 1.0)
+            for i, b in zip(images[sure].tolist(), belief[sure].tolist()):
+                self.settled[i, n] = self.settled[i, n] or decided(inference, self.states[n][i], b)
+        told = ~self.settled[images, n] & (present if positive_only else True)
+        images, nodes, present = images[told], nodes[told], present[told]
+        if not len(images):
+            return
         trial = self.states[n][images]
         trial[np.arange(len(images)), plan.position[n, nodes]] = present
-        inference = engine(plan.nets[n])
         results = [inference.evaluate(row) for row in trial]
         posterior = np.array([r[0] for r in results])
         possible = posterior == posterior  # not NaN: the evidence is possible

@@ -33,19 +33,20 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from ..errors import InputError
 from ..space.features import Feature
 from .bayes import ClassNetwork, compound_arcs
-from .candidates import METHODS, CandidateGenerator, in_use, pick
+from .candidates import METHODS, CandidateGenerator, in_use, pick, search_order
 from .counting import Counting
 from .environment import ImageSet
-from .expertise import choose_pair
+from .expertise import Weakest, choose_pair, makes
 from .inference import Outcome, Recognition, Result, outcome, residual_entropy
 from .instances import InstanceList
 from .recognizer import Ahead, Recognizer
-from .settings import LearnerSettings
+from .settings import Distinctions, LearnerSettings
 
 
 class Presentation(NamedTuple):
@@ -63,11 +64,13 @@ class Presentation(NamedTuple):
 
 class Search(NamedTuple):
     """One search's question (alg. 4.8 step 1, alg. 5.2): a feature characteristic of ``characterized``
-    against the classes ``discriminated``; ``is_true``: whether the characterized class is one of the image's."""
+    against the classes ``discriminated``; ``is_true``: whether the characterized class is one of the image's;
+    ``also``: the other classes whose distinction from it a candidate should make too (shared distinctions)."""
 
     characterized: Hashable
     discriminated: frozenset
     is_true: bool
+    also: frozenset = frozenset()
 
 
 class Learning:
@@ -181,18 +184,21 @@ class Learning:
         chosen = self.choose_pair(rec, true, entropy)
         if chosen is None:
             return Presentation(rec, Result.CORRECT, entropy)
-        c, d, weakest = chosen
-        if weakest >= t_ksd and (self.settings.redundancy == 1 or weakest > 0):  # k > 1: carried means power > 0 too
+        c, d, weakest, _ = chosen
+        k = self.settings.redundancy
+        if makes(weakest, t_ksd, k):
             return Presentation(rec, Result.CORRECT, entropy, (c, d), weakest)
-        learned = self._search(env, image, Search(c, frozenset({d}), c in true), t_ksd,
+        shared = self.settings.distinctions is Distinctions.SHARED
+        also = chosen.short(t_ksd, k) - {d} if shared else frozenset()
+        learned = self._search(env, image, Search(c, frozenset({d}), c in true, also), t_ksd,
                                lambda after: outcome(after.recognized, true) is Outcome.CORRECT)
         return Presentation(rec, Result.EXPERT if learned else Result.EXPERT_FAILED, entropy, (c, d), weakest,
                             (c, frozenset({d})))
 
-    def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> tuple | None:
-        """Alg. 5.2 (:func:`ftorch.recognition.expertise.choose_pair` with ``redundancy``): (c, d,
-        KSD_{c,d}) for the least-well-discriminated pair, or None; with k > 1 the k strongest carriers
-        of every pair scored count as used."""
+    def choose_pair(self, rec: Recognition, true: frozenset, entropy: dict) -> Weakest | None:
+        """Alg. 5.2 (:func:`ftorch.recognition.expertise.choose_pair` with ``redundancy``): the
+        least-well-discriminated pair, or None; with k > 1 the k strongest carriers of every pair scored
+        count as used."""
         best, used = choose_pair(self.networks, self.counting, rec, true, entropy, self.settings.redundancy)
         for carriers in used:
             self._mark_usage(carriers)
@@ -258,11 +264,12 @@ class Learning:
         """Alg. 4.8 from step 2: add one feature characteristic of the characterized class against the
         discriminated ones with distinctive power > 0 and >= ``t_ksd`` after which ``succeeded(recognition
         of image)``. Alg. 4.10 (the five methods) is called up to ``search_rounds`` times (alg. 5.1's "until")."""
-        settings, (label, against, is_true) = self.settings, search
+        settings, (label, against, is_true, also) = self.settings, search
         sample = image if is_true else pick(env.examples(label, settings.n_ex, self.generator), self.generator)
         own = env.examples(label, settings.n_ex, self.generator)
         examples = list(own)
-        for d in sorted(against, key=str):  # a fixed order: set order varies with the process hash seed
+        classes = [*sorted(against, key=str), *sorted(also - against, key=str)]  # fixed: set order follows the hash seed
+        for d in classes:
             examples += env.examples(d, settings.n_ex, self.generator)
         images = list(dict.fromkeys([image, sample, *examples]))
         samples = [sample] if settings.contrast == 1 else list(dict.fromkeys([sample, *own]))
@@ -279,7 +286,7 @@ class Learning:
             self.counting.measure(env, [*candidates, *net.features], images)
             # trying a candidate changes no candidate's values or classes: discretize them all at once
             cuts, powers = self.counting.discretize(label, candidates, settings, against)
-            for candidate, cut, power in self._in_order(candidates, cuts.tolist(), powers.tolist(), t_ksd):
+            for candidate, cut, power in self._in_order(label, classes if also else [], candidates, cuts, powers, t_ksd):
                 if not (power <= 0 or power < t_ksd) and self._try(env, image, search, candidate, cut, images, succeeded):
                     return True
                 failed.append(candidate)
@@ -307,14 +314,11 @@ class Learning:
         counting.estimate(net, settings)
         return False
 
-    def _in_order(self, candidates: list, cuts: list, powers: list, t_ksd: float) -> list[tuple]:
-        """(candidate, cut-point, power) in the order a search tests them: as drawn (alg. 4.10); with
-        ``contrast`` N > 1 those that fail the power test first, then the n_fgen most distinctive on
-        the search's images, most distinctive first (ties in drawing order)."""
-        drawn = list(zip(candidates, cuts, powers))
-        if self.settings.contrast == 1:
-            return drawn
-        fails = [power <= 0 or power < t_ksd for _, _, power in drawn]
-        weak = [item for item, failing in zip(drawn, fails) if failing]
-        strong = [item for item, failing in zip(drawn, fails) if not failing]
-        return weak + sorted(strong, key=lambda item: -item[2])[:self.settings.n_fgen]
+    def _in_order(self, label, classes: list, candidates: list, cuts: np.ndarray, powers: np.ndarray,
+                  t_ksd: float) -> list[tuple]:
+        """(candidate, cut-point, power) in the order a search tests them (:func:`~ftorch.recognition.candidates.search_order`),
+        with each candidate's KSD_{c,x} at its cut-point summed over the ``classes`` x (shared distinctions; 0 without)."""
+        served = np.zeros(len(candidates))
+        if classes:
+            served = self.counting.pair_powers(self.networks, [(label, classes, candidates)], cuts)[0].numpy().sum(0)
+        return search_order(candidates, cuts, powers, served, t_ksd, self.settings)

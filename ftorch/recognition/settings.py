@@ -6,8 +6,8 @@ development data, never on reported views; docs/results.md): a learning threshol
 pseudocount 1, redundancy 3, the three primitives (texel, edgel pair, statistical texture) and a
 contrastive search of factor 4, one setting for COIL objects and faces alike.
 :meth:`LearnerSettings.thesis` holds the dissertation's own settings: recognition until I_max = 0,
-relative-frequency CPTs, alg. 5.2 and alg. 4.10 as printed (texels and edgel pairs, one draw of n_fgen). Each
-field's ``help`` is what the command line prints for it (``--n-ex`` for ``n_ex``).
+relative-frequency CPTs, alg. 5.2 and alg. 4.10 as printed (texels and edgel pairs, one draw of n_fgen).
+Each field's ``help`` is what the command line prints for it (``--n-ex`` for ``n_ex``).
 """
 from __future__ import annotations
 
@@ -68,6 +68,13 @@ class Evidence(StrEnum):
     POSITIVE = "positive"  # presence only: an absent feature may be occluded
 
 
+class Distinctions(StrEnum):
+    """How expert learning meets the class distinctions that lack distinctive features (alg. 5.2, 7.2.4)."""
+
+    SHARED = "shared"  # a search prefers the feature with the most power over its class's short distinctions
+    PAIR = "pair"  # alg. 5.2 as printed: a feature for the one least-well-discriminated pair
+
+
 @dataclass(frozen=True)
 class LearnerSettings(Settings):
     """The options of :class:`~ftorch.recognition.learner.DistinctiveFeatureLearner` (its module
@@ -86,6 +93,11 @@ class LearnerSettings(Settings):
                              "(1: alg. 5.2 as printed)", "K", at_least=1, at_most=100, what="a number of features")
     evidence: Evidence = option(Evidence.BOTH, "both: presence and absence enter the networks (4.4.1); "
                                 "positive: presence only (4.4.2)")
+    distinctions: Distinctions = option(
+        Distinctions.PAIR, "pair: an expert search serves alg. 5.2's one least-well-discriminated pair, as "
+        "printed; shared: it also measures its candidates on the other classes its class is short of "
+        "distinctive features against and tries first those with the most distinctive power summed over "
+        "these distinctions (measured, not adopted: docs/decisions.md)")
     pseudocount: float = option(1.0, "added to every CPT count (0: relative frequencies as the thesis)", "A")
     leak: float = option(0.0, "detection failure: every CPT entry p becomes L + (1 - 2L) p, so that one missing "
                          "feature does not rule its class out", "L")
@@ -126,10 +138,11 @@ class LearnerSettings(Settings):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
-        try:
-            object.__setattr__(self, "evidence", Evidence(self.evidence))
-        except ValueError:
-            raise InputError(f"evidence {self.evidence!r}: expected one of {', '.join(Evidence)}") from None
+        for name, kind in (("evidence", Evidence), ("distinctions", Distinctions)):
+            try:
+                object.__setattr__(self, name, kind(getattr(self, name)))
+            except ValueError:
+                raise InputError(f"{name} {getattr(self, name)!r}: expected one of {', '.join(kind)}") from None
         object.__setattr__(self, "primitives", primitive_set(self.primitives))
         object.__setattr__(self, "regions", frame_set(self.regions))
 
@@ -150,7 +163,7 @@ class LearnerSettings(Settings):
         out = asdict(self)
         out["primitives"] = ",".join(self.primitives)
         out["regions"] = ",".join(self.regions)
-        out["evidence"] = str(self.evidence)
+        out["evidence"], out["distinctions"] = str(self.evidence), str(self.distinctions)
         return out
 
 

@@ -8,6 +8,7 @@ Schema versions (``"schema"`` in the state; files without it are version 0):
   every option beyond the thesis was introduced with its thesis behaviour as the value "off"), and
   ``test_information`` at ``min_information``'s (the answers used it); a missing seed was 0.
 - 1: every option and the seed recorded.
+- 2: ``distinctions`` recorded; a version 1 file learned one class pair per expert search (``pair``).
 
 Load, resume and the trade-off read a state through :func:`migrated`; a state of a newer schema
 is refused in one line. Features are referred to by position in a feature table (``"features"``,
@@ -28,12 +29,12 @@ from .bayes import ClassNetwork
 from .counting import Counting
 from .environment import ImageSet
 from .instances import are_stored_values
-from .settings import LearnerSettings, integer_in
+from .settings import Distinctions, LearnerSettings, integer_in
 
 if TYPE_CHECKING:
     from .learning import Learning
 
-SCHEMA = 1
+SCHEMA = 2
 KIND = "learner"
 TRAINING_STATE = ("generator", "discriminates", "selected", "usage", "instances")  # what a training state adds
 GENERATOR_STATE = tuple(torch.Generator().get_state().shape)  # the bytes of a torch.Generator's state
@@ -60,7 +61,12 @@ def _schema_0(state: dict) -> dict:
     return {**state, **options_before(state), "seed": state.get("seed", 0), "schema": 1}
 
 
-MIGRATIONS = {0: _schema_0}  # version -> the state one version on
+def _schema_1(state: dict) -> dict:
+    """Version 1 to 2: expert learning as printed, one class pair per search, before ``distinctions`` existed."""
+    return {"distinctions": str(Distinctions.PAIR), **state, "schema": 2}
+
+
+MIGRATIONS = {0: _schema_0, 1: _schema_1}  # version -> the state one version on
 
 
 def migrated(state: dict) -> dict:

@@ -183,3 +183,48 @@ def test_a_block_of_images_is_recognized_as_each_image_alone(seed, positive_only
     assert recognize_block(nets, values[:, :0], plan=plan) == []
     with pytest.raises(ValueError, match="features"):
         recognize_block(nets, values[1:], plan=plan)
+
+
+def _decided_and_open():
+    """A: a perfect feature 'a' and 'x', which B holds too; B: noisy 'x' and 'b', never decided."""
+    a = ClassNetwork("A")
+    a.add_feature("a", threshold=0.5)
+    a.add_feature("x", threshold=0.5)
+    a.prior = np.array([0.5, 0.5])
+    a.set_cpt("a", np.array([[1.0, 0.0], [0.0, 1.0]]))
+    a.set_cpt("x", np.array([[0.8, 0.2], [0.3, 0.7]]))
+    b = ClassNetwork("B")
+    b.add_feature("x", threshold=0.5)
+    b.add_feature("b", threshold=0.5)
+    b.prior = np.array([0.6, 0.4])
+    b.set_cpt("x", np.array([[0.7, 0.3], [0.2, 0.8]]))
+    b.set_cpt("b", np.array([[0.9, 0.1], [0.4, 0.6]]))
+    return {"A": a, "B": b}
+
+
+@pytest.mark.parametrize("block", [False, True])
+def test_a_decided_network_is_neither_asked_nor_told_and_an_undecided_one_goes_on(block, monkeypatch):
+    from ftorch.recognition.exact import ExactInference
+    from ftorch.recognition.inference import decided, recognize_block
+
+    nets = _decided_and_open()
+    values = {"a": 0.9, "x": 0.8, "b": 0.7}
+    calls = []
+    evaluate = ExactInference.evaluate
+    monkeypatch.setattr(ExactInference, "evaluate", lambda self, state: calls.append(
+        (self.network.label, tuple(state.tolist()))) or evaluate(self, state))
+    if block:
+        table = np.array([[values["a"], values["x"], values["b"]]] * 30).T  # plan keys: a, x, b
+        rec = recognize_block(nets, table)[0]
+    else:
+        rec = recognize(nets, values.__getitem__)
+    assert rec.queried[0] == "a" and sorted(rec.queried) == ["a", "b", "x"]  # B, undecided, is still asked for both its features
+    assert {label for label, state in calls if label == "A" and state[1] >= 0} == set()  # A, decided by 'a', is not told 'x'
+    assert rec.posteriors["A"] == 1.0 and decided(engine(nets["A"]), np.array([1, -1]), 1.0)
+    expected = engine(nets["B"]).posterior({"x": 1, "b": 1})  # B told everything, as without the rule
+    assert rec.posteriors["B"] == pytest.approx(expected, abs=0, rel=1e-15)
+    rounded = ClassNetwork("R")  # no zero anywhere: a belief of 1.0 is only rounded, not decided
+    rounded.add_feature("r")
+    rounded.prior = np.array([1e-17, 1 - 1e-17])
+    rounded.set_cpt("r", np.array([[0.5, 0.5], [0.5, 0.5]]))
+    assert engine(rounded).posterior({}) == 1.0 and not decided(engine(rounded), np.array([-1]), 1.0)

@@ -23,8 +23,8 @@ class SkipSettings(LearnerSettings):
 class SkippingLearner(DistinctiveFeatureLearner):
     """Place 2 of 2: where the option is used."""
 
-    def _in_order(self, candidates: list, cuts: list, powers: list, t_ksd: float) -> list[tuple]:
-        return super()._in_order(candidates, cuts, powers, t_ksd)[self.settings.skip - 1:]
+    def _in_order(self, label, classes: list, candidates: list, cuts, powers, t_ksd: float) -> list[tuple]:
+        return super()._in_order(label, classes, candidates, cuts, powers, t_ksd)[self.settings.skip - 1:]
 
 
 def _learned(learner, env, n: int = 12):
@@ -59,12 +59,13 @@ def test_a_new_option_needs_its_settings_field_and_its_use_only(shapes):
 def test_states_of_schema_0_migrate_to_the_values_before_each_option_existed(shapes):
     learner = _learned(DistinctiveFeatureLearner(seed=1), shapes)
     state = json.loads(json.dumps(learner.state_dict()))
-    assert state["schema"] == SCHEMA == 1
+    assert state["schema"] == SCHEMA == 2
     newer = [k for k in LearnerSettings.names() if k not in ("n_ex", "n_fgen", "min_information")]
     old = _without(state, "schema", "seed", *newer)
     moved = migrated(old)
     thesis = LearnerSettings.thesis()
-    assert moved["schema"] == 1 and moved["seed"] == 0 and moved["test_information"] == state["min_information"]
+    assert moved["schema"] == 2 and moved["seed"] == 0 and moved["distinctions"] == "pair"
+    assert moved["test_information"] == state["min_information"]
     assert all(moved[k] == getattr(thesis, k) for k in ("pseudocount", "redundancy", "leak", "contrast", "calibrate"))
     assert moved["primitives"] == "texel,edgel" and old.get("schema") is None  # the input is left as it was
     loaded = DistinctiveFeatureLearner()
@@ -72,6 +73,16 @@ def test_states_of_schema_0_migrate_to_the_values_before_each_option_existed(sha
     assert loaded.settings == thesis.replace(n_ex=state["n_ex"], n_fgen=state["n_fgen"], min_information=state["min_information"],
                                              test_information=state["min_information"])
     assert loaded.networks.keys() == learner.networks.keys() and loaded.presentations == learner.presentations
+
+
+def test_states_of_schema_1_learned_one_class_pair_per_expert_search(shapes):
+    learner = _learned(DistinctiveFeatureLearner(seed=1, distinctions="shared"), shapes)
+    state = json.loads(json.dumps(learner.state_dict()))
+    assert state["distinctions"] == "shared"
+    old = {**_without(state, "distinctions"), "schema": 1}
+    loaded = DistinctiveFeatureLearner(distinctions="shared")
+    loaded.load_state_dict(old)
+    assert loaded.settings == learner.settings.replace(distinctions="pair")
 
 
 def test_a_newer_schema_is_refused_in_one_line_and_a_state_missing_an_option_is_damaged(shapes, tmp_path):

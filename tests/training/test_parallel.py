@@ -95,6 +95,25 @@ def test_two_workers_write_the_sequential_report(tmp_path):
         check_events(tmp_path / "two" / "tensorboard" / f"fold{k}", report["folds"][k - 1], report["config"])
 
 
+def test_the_same_seed_writes_the_same_learner_bytes_whatever_the_workers_and_threads(tmp_path):
+    """Issue 55's rule: the same seed gives the same bits whatever the batch, workers or threads
+    (feature values are summed in a fixed order, ftorch.space.steering.dot). An expert stage is included."""
+    args = [*ARGS, "--stages", "1"]
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            assert run.main([*args, "--out", str(tmp_path / f"threads{n}")]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    assert run.main([*args, "--out", str(tmp_path / "workers2"), "--workers", "2"]) == 0
+    for k in (1, 2):
+        learned = [(tmp_path / run_name / f"fold{k}" / "learner.json").read_bytes()
+                   for run_name in ("threads1", "threads2", "workers2")]
+        assert learned[0] == learned[1] == learned[2], k
+    assert report_text(tmp_path / "threads1") == report_text(tmp_path / "workers2")
+
+
 @needs_ray
 def test_ray_runs_two_folds_to_the_sequential_report(tmp_path):
     import ray

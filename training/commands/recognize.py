@@ -7,6 +7,7 @@ import shutil
 import sys
 import time
 from dataclasses import dataclass, field, fields, replace
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from ftorch import FeatureSpace
 from ftorch.checkpoint import write_text
 from ftorch.errors import InputError
 from ftorch.recognition.learner import DistinctiveFeatureLearner
-from ftorch.recognition.settings import Evidence, LearnerSettings, frame_set, primitive_set
+from ftorch.recognition.settings import LearnerSettings, frame_set, primitive_set
 from ftorch.recognition.stages import CYCLES_LIMIT, MAX_CYCLES, STAGES_LIMIT
 from ftorch.space.draw import save_rgb
 from ftorch.space.record import ImageRecords, require_memory
@@ -422,8 +423,8 @@ def _learner_options(p: argparse.ArgumentParser) -> None:
         elif f.name == "regions":
             p.add_argument(flag, type=regions, default=",".join(default) or "none", metavar=text.metavar,
                            help=f"{text.help} (default {','.join(default) or 'none'})")
-        elif f.name == "evidence":
-            p.add_argument(flag, choices=[str(e) for e in Evidence], default=str(default),
+        elif isinstance(default, StrEnum):
+            p.add_argument(flag, choices=[str(e) for e in type(default)], default=str(default),
                            help=f"{text.help} (default {default})")
         else:
             p.add_argument(flag, type=number, default=default, metavar=text.metavar,
