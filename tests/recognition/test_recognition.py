@@ -186,20 +186,15 @@ def test_a_block_of_images_is_recognized_as_each_image_alone(seed, positive_only
 
 
 def _decided_and_open():
-    """A: a perfect feature 'a' and 'x', which B holds too; B: noisy 'x' and 'b', never decided."""
-    a = ClassNetwork("A")
-    a.add_feature("a", threshold=0.5)
-    a.add_feature("x", threshold=0.5)
-    a.prior = np.array([0.5, 0.5])
-    a.set_cpt("a", np.array([[1.0, 0.0], [0.0, 1.0]]))
-    a.set_cpt("x", np.array([[0.8, 0.2], [0.3, 0.7]]))
-    b = ClassNetwork("B")
-    b.add_feature("x", threshold=0.5)
-    b.add_feature("b", threshold=0.5)
-    b.prior = np.array([0.6, 0.4])
-    b.set_cpt("x", np.array([[0.7, 0.3], [0.2, 0.8]]))
-    b.set_cpt("b", np.array([[0.9, 0.1], [0.4, 0.6]]))
-    return {"A": a, "B": b}
+    """Two-class networks where A holds 'x' beside its perfect 'a', and B holds 'x' and its noisy 'b',
+    not its perfect 'bb': A can be decided, B never."""
+    nets = two_class_networks()
+    nets["A"].add_feature("x", threshold=0.5)
+    nets["A"].set_cpt("x", np.array([[0.8, 0.2], [0.3, 0.7]]))
+    nets["B"].remove_feature("bb")
+    nets["B"].add_feature("x", threshold=0.5)
+    nets["B"].set_cpt("x", np.array([[0.7, 0.3], [0.2, 0.8]]))
+    return nets
 
 
 @pytest.mark.parametrize("block", [False, True])
