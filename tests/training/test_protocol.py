@@ -108,13 +108,13 @@ def test_a_fold_checkpoint_of_schema_0_resumes_and_a_newer_schema_is_refused_in_
         make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, after_cycle=stop)
     path = tmp_path / "cut" / "checkpoint.json"
     saved = json.loads(path.read_text())
-    assert saved["schema"] == 1 and saved["learner"]["schema"] == 1
-    newer = ("leak", "contrast", "texture_parts", "calibrate", "regions", "test_information")
+    assert saved["schema"] == 2 and saved["learner"]["schema"] == 2
+    newer = ("leak", "contrast", "texture_parts", "calibrate", "regions", "test_information", "distinctions")
     old = {**{k: v for k, v in saved.items() if k != "schema"}, "config": {k: v for k, v in saved["config"].items()
                                                                             if k not in (*newer, "dynamic")},
            "learner": {k: v for k, v in saved["learner"].items() if k not in (*newer, "schema")}}
-    path.write_text(json.dumps({**old, "schema": 2}))
-    with pytest.raises(InputError, match=r"checkpoint.json: a fold checkpoint of schema 2, newer than this ftorch reads \(1\)"):
+    path.write_text(json.dumps({**old, "schema": 3}))
+    with pytest.raises(InputError, match=r"checkpoint.json: a fold checkpoint of schema 3, newer than this ftorch reads \(2\)"):
         make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, resume=True)
     path.write_text(json.dumps(old))
     resumed, _ = make_fold(small_task, tmp_path / "cut").run(max_cycles=3, stages=1, resume=True)

@@ -14,6 +14,7 @@ from ftorch.recognition.packing import pack, unpack
 from ftorch.space.features import Conjunction, Disjunction, Feature, Geometric, Part, Texel, Texture, Within
 from tests.training.test_robustness import u8, view, views
 from training.recognition.peers import PixelNN, SiftMatcher, score, sift_descriptors
+from training.recognition.schema import SCHEMA
 from training.recognition.tradeoff import Point, budget_rows, keypoint_budgets
 
 RUN = ["recognize", "--task", "plym", "--classes", "2", "--size", "32", "--stages", "0", "--folds", "1", "--quiet",
@@ -280,12 +281,13 @@ def test_tradeoff_command_measures_every_method_on_the_same_views(runs, tmp_path
     assert run.main([*args, "--out", str(tmp_path / "a")]) == 2  # no --overwrite
     newer = tmp_path / "newer"
     shutil.copytree(runs / "k1", newer)
-    (newer / "report.json").write_text(json.dumps({**json.loads((runs / "k1" / "report.json").read_text()), "schema": 2}))
+    (newer / "report.json").write_text(json.dumps({**json.loads((runs / "k1" / "report.json").read_text()), "schema": SCHEMA + 1}))
     assert run.main(["tradeoff", "--runs", str(newer), "--out", str(tmp_path / "c")]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 5 and "learned different tasks (size differ)" in errors[0] and "is missing" in errors[1]
     assert "lies inside --runs" in errors[2] and not (runs / "k1" / "front").exists()
-    assert errors[4].endswith(f"--runs {newer}: a report of schema 2, newer than this ftorch reads (1): update ftorch to read it")
+    assert errors[4].endswith(f"--runs {newer}: a report of schema {SCHEMA + 1}, newer than this ftorch reads ({SCHEMA}): "
+                              "update ftorch to read it")
 
 
 def test_runs_are_named_by_the_options_they_differ_in_and_older_configs_by_their_defaults():
