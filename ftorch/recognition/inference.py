@@ -9,8 +9,9 @@ informative (I_max <= ``tolerance``). Evidence that a
 network deems impossible (probability 0 under its counted CPTs) is not entered there; that
 network keeps its belief. Ties in I_max go to the first network, then the first feature. A network
 whose class is decided (P(C = 1, e) or P(C = 0, e) exactly 0: log odds +-inf, :func:`decided`) keeps
-its belief whatever is entered next and has no information left: it is neither asked nor told
-again, so it costs nothing for the rest of the recognition (the same queries and beliefs as telling it).
+its belief whatever is entered next and has no information left (0 up to rounding, far below the
+least tolerance, 1e-12): it is neither asked nor told again, so it costs nothing for the rest of the
+recognition (the same queries and beliefs as telling it).
 
 The answer is a set (def. 4.5): every class whose posterior exceeds 0.5, so one class, several
 (ambiguous) or none (ignorant). :func:`top_class` adds one label per image beside it
@@ -237,9 +238,7 @@ def _entered(inference: ExactInference, state: np.ndarray, position: int, presen
     trial = state.copy()
     trial[position] = int(present)
     posterior, info = inference.evaluate(trial)
-    if posterior != posterior:  # NaN: impossible
-        return None
-    return trial, posterior, np.zeros_like(info) if decided(inference, trial, posterior) else info
+    return (trial, posterior, info) if posterior == posterior else None  # NaN: impossible
 
 
 def _sequential(plan: Plan, states, belief, informative: np.ndarray, asked: np.ndarray, measure, tolerance: float,
