@@ -61,9 +61,16 @@ def _schema_0(state: dict) -> dict:
     return {**state, **options_before(state), "seed": state.get("seed", 0), "schema": 1}
 
 
+def distinctions_before(stored: dict) -> dict:
+    """``stored`` (a learner state, or a run's config that writes its options in line) completed by
+    schema 2's rule: a file of an earlier schema learned one class pair per expert search (alg. 5.2 as
+    printed, ``distinctions`` pair)."""
+    return {"distinctions": str(Distinctions.PAIR), **stored}
+
+
 def _schema_1(state: dict) -> dict:
-    """Version 1 to 2: expert learning as printed, one class pair per search, before ``distinctions`` existed."""
-    return {"distinctions": str(Distinctions.PAIR), **state, "schema": 2}
+    """Version 1 to 2: :func:`distinctions_before`."""
+    return {**distinctions_before(state), "schema": 2}
 
 
 MIGRATIONS = {0: _schema_0, 1: _schema_1}  # version -> the state one version on

@@ -10,13 +10,13 @@ Schema versions:
   its value before the option existed: the learner's by :func:`ftorch.recognition.state.options_before`,
   dynamic views off (``dynamic``).
 - 1: every option recorded.
-- 2: ``distinctions`` recorded; a version 1 run learned one class pair per expert search (``pair``).
+- 2: ``distinctions`` recorded; a version 1 run learned one class pair per expert search (``pair``:
+  :func:`ftorch.recognition.state.distinctions_before`, the learner states' rule).
 """
 from __future__ import annotations
 
 from ftorch.checkpoint import schema_of
-from ftorch.recognition.settings import Distinctions
-from ftorch.recognition.state import options_before
+from ftorch.recognition.state import distinctions_before, options_before
 
 SCHEMA = 2
 
@@ -26,12 +26,7 @@ def _config_schema_0(config: dict) -> dict:
     return {**options_before(config), "dynamic": False, **config}
 
 
-def _config_schema_1(config: dict) -> dict:
-    """Version 1 to 2 (module doc)."""
-    return {"distinctions": str(Distinctions.PAIR), **config}
-
-
-MIGRATIONS = {0: _config_schema_0, 1: _config_schema_1}  # version -> the config one version on
+MIGRATIONS = {0: _config_schema_0, 1: distinctions_before}  # version -> the config one version on
 
 
 def migrated_config(config: dict, version, what: str) -> dict:
