@@ -138,7 +138,7 @@ class LearnerSettings(Settings):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
-        for name, kind in (("evidence", Evidence), ("distinctions", Distinctions)):
+        for name, kind in self._choices():
             try:
                 object.__setattr__(self, name, kind(getattr(self, name)))
             except ValueError:
@@ -158,12 +158,17 @@ class LearnerSettings(Settings):
         """Whether only present features enter the networks (``evidence`` positive, 4.4.2)."""
         return self.evidence is Evidence.POSITIVE
 
+    @classmethod
+    def _choices(cls) -> list[tuple[str, type[StrEnum]]]:
+        """The options that take one of an enum's values (evidence, distinctions): each with its enum."""
+        return [(f.name, type(f.default)) for f in fields(cls) if isinstance(f.default, StrEnum)]
+
     def to_dict(self) -> dict:
-        """JSON-ready: the primitives and the regions' frames as comma-separated strings, the evidence as its name."""
+        """JSON-ready: the primitives and the regions' frames as comma-separated strings, each choice as its name."""
         out = asdict(self)
         out["primitives"] = ",".join(self.primitives)
         out["regions"] = ",".join(self.regions)
-        out["evidence"], out["distinctions"] = str(self.evidence), str(self.distinctions)
+        out.update({name: str(getattr(self, name)) for name, _ in self._choices()})
         return out
 
 
