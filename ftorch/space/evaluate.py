@@ -37,7 +37,7 @@ from .primitives import PartKind
 from .record import ImageRecords
 from .region import Region, inside
 from .sampling import Frames, placements, sample_texture, sample_unmasked, steered
-from .steering import dot
+from .steering import dot, unit
 from .texture import level_sigma
 
 
@@ -188,9 +188,7 @@ def _local_chunk(vectors: list[Tensor], params: Tensor, kinds: tuple[PartKind, .
         # an invalid sample's cosine becomes -1 below, so its responses need not be zeroed first
         if kinds[i] is PartKind.TEXTURE:
             sample, ok = sample_texture(records, reference.image, x, y, sigma)
-            sample = sample / dot(sample, sample).sqrt()[..., None].clamp_min(tiny)
-            unit = vectors[i] / dot(vectors[i], vectors[i]).sqrt()[:, None]
-            coefficient = dot(sample, unit[:, None]).clamp(0, 1)
+            coefficient = dot(unit(sample, tiny), unit(vectors[i])[:, None]).clamp(0, 1)
             texture = coefficient if texture is None else texture * coefficient
         else:
             edgel = kinds[i] == PartKind.EDGEL
@@ -223,11 +221,11 @@ def _texture_fields(features: list[Texture], records: ImageRecords, max_elements
     bounds = None if regions is None else _Bounds(regions, records, reference)
     chunk = max(1, max_elements // max(1, len(reference.image) * 2 + (0 if bounds is None else bounds.elements)))
     tiny = torch.finfo(records.dtype).tiny
-    points = reference.canonical / dot(reference.canonical, reference.canonical).sqrt()[:, None].clamp_min(tiny)
+    points = unit(reference.canonical, tiny)
     results = []
     for start in range(0, len(features), chunk):
         v = vectors[start : start + chunk]
-        cosine = dot((v / dot(v, v).sqrt()[:, None])[:, None], points[None]).clamp(0, 1)
+        cosine = dot(unit(v)[:, None], points[None]).clamp(0, 1)
         if bounds is not None:
             cosine = torch.where(bounds.allowed(start, start + chunk), cosine, -1.0)
         results.append(reference.best(cosine, located))

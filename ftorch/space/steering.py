@@ -26,6 +26,13 @@ def dot(a: Tensor, b: Tensor) -> Tensor:
     return (a * b).sum(-1)
 
 
+def unit(v: Tensor, floor: float | None = None) -> Tensor:
+    """``v`` divided by its length along the last axis (by :func:`dot`, so the same bits whatever shares
+    the call), the length clamped from below at ``floor`` where given (a zero vector stays 0, not NaN)."""
+    length = dot(v, v).sqrt()[..., None]
+    return v / (length if floor is None else length.clamp_min(floor))
+
+
 def rotate_pair(pair: Tensor, angle: Tensor) -> Tensor:
     """Steer first-order pairs (..., 2) by ``angle`` (...): the first-order half of eq. 3.8."""
     c, s = torch.cos(angle), torch.sin(angle)
