@@ -19,14 +19,13 @@ from training.cli.jobs import device_options
 from training.cli.outputs import Command, Ledger, RunFolder, apart, locked, writable_folder
 from training.plots import feature_types_figure, figure_rgb
 from training.recognition.protocol import RecordedTask, same_images
-from training.recognition.records import Report
+from training.recognition.records import recognize_run
 from training.recognition.report import (
     write_json,
 )
 from training.recognition.robustness import SETS, TABLE_CELLS, Robustness, feature_tables, fold_robustness, perturbations
 from training.recognition.robustness import average as average_robustness
 from training.recognition.robustness import table as robustness_table
-from training.recognition.schema import migrated_config
 
 
 def robustness_command(args) -> int:
@@ -63,17 +62,12 @@ def _recorded_data(run: Path) -> str | None:
 
 def _robustness(args, device: torch.device, kinds: list[str], run: Path, out: Path, ledger: Ledger) -> int:
     """The body of :func:`robustness_command` once its output folder is held."""
-    try:
-        report = Report.from_json(json.loads((run / "report.json").read_text()))
-        recorded = RecordedTask.from_json(migrated_config(report.config, report.schema, f"--run {run}: a report"))
+    with recognize_run(run, "--run") as (report, config):
+        recorded = RecordedTask.from_json(config)
         data = args.data or recorded.data
         folds = [f.fold for f in report.folds]
         if not folds:
             raise ValueError("no folds")
-    except InputError:
-        raise  # a newer schema: its own line
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError, RecursionError) as err:
-        raise InputError(f"--run {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     task = recorded.load(data)  # outside the try: its own refusals (a missing --data) are one line already
     same_images(task, recorded.images, f"--run {run}", data)
     start = time.perf_counter()

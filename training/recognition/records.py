@@ -9,14 +9,21 @@ as nested dicts; a stage entry writes its stage's own fields in line (:class:`St
 """
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ftorch.errors import InputError
 from ftorch.recognition.stages import ClassAdded, Stage
 from training.records import INLINE, OPTIONAL, Record, key
+
+from .schema import migrated_config
 
 
 @dataclass(kw_only=True)
@@ -231,6 +238,21 @@ class Report(Record):
     @property
     def incremental(self) -> bool:
         return bool(self.config.get("incremental"))
+
+
+@contextmanager
+def recognize_run(run: Path, option: str) -> Iterator[tuple[Report, dict]]:
+    """The report.json of the recognize run in folder ``run`` (given as the command line's ``option``) and
+    its run config brought to the current schema (:func:`~training.recognition.schema.migrated_config`),
+    for the ``with`` body to read them: a newer schema is refused in its own line, and anything found
+    wrong, in the file or in what the body reads of it, is one InputError naming the folder."""
+    try:
+        report = Report.from_json(json.loads((run / "report.json").read_text()))
+        yield report, migrated_config(report.config, report.schema, f"{option} {run}: a report")
+    except InputError:
+        raise  # a newer schema: its own line
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError, RecursionError) as err:
+        raise InputError(f"{option} {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
 
 
 

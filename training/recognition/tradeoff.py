@@ -43,9 +43,8 @@ from training.records import OPTIONAL, Record
 from ..data.datasets import Task
 from .peers import PixelNN, SiftMatcher, score, score_ranked, sift_descriptors
 from .protocol import RecordedTask, RunConfig, same_images, test_block
-from .records import Report, TestBlock
+from .records import TestBlock, recognize_run
 from .robustness import fold_sets, views
-from .schema import migrated_config
 
 SIDES = (4, 8, 16, 32, None)  # pixel 1-NN image sides; None: as stored
 BUDGETS = (256, 512, 1024, 2048, 4096, 8192, 16384)  # bytes per class in the budget table
@@ -126,15 +125,9 @@ class Learner:
 
 def run_learners(run: Path) -> tuple[dict, list[Learner]]:
     """A recognize run's config and every learner it wrote (seed 0's folds, the other seeds' fold 1)."""
-    try:
-        report = Report.from_json(json.loads((run / "report.json").read_text()))
-        config = migrated_config(report.config, report.schema, f"--runs {run}: a report")
+    with recognize_run(run, "--runs") as (report, config):
         folds = [int(f.fold) for f in report.folds]
         seeds = [int(s) for s in (report.seeds.seeds if report.seeds is not None else [report.seed])]
-    except InputError:
-        raise  # a newer schema: its own line
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise InputError(f"--runs {run}: not a run folder of recognize ({type(err).__name__}: {err})") from None
     learners = [Learner(run, seeds[0], k, run / f"fold{k}" / "learner.json") for k in folds]
     learners += [Learner(run, s, 1, run / f"seed{s}" / "fold1" / "learner.json") for s in seeds[1:]]
     for learner in learners:
